@@ -1,0 +1,258 @@
+// Shared declarations for every fogcast compute stage (group 0), prepended to each stage.
+// Mirrors `src/render/gpu_types.rs`; media and phase mirror `src/scene/media.rs`.
+
+struct Frame {
+    grid_min: vec3f,
+    voxel_size: f32,
+    grid_dims: vec3u,
+    light_count: u32,
+    sky: vec3f,
+    medium_count: u32,
+    ambient: vec3f,
+    exposure: f32,
+    view_count: u32,
+    frame_index: u32,
+    flags: u32,
+    time_s: f32,
+    grid_words_x: u32,
+    max_ray_m: f32,
+    frustum_slices: u32,
+    slices: u32,
+}
+
+// Frame.flags
+const FLAG_PARITY: u32 = 1u;     // update only voxels whose z parity matches the frame's
+const FLAG_TRILINEAR: u32 = 2u;  // 8-voxel trilinear grid lookup (000 §3.1.3)
+const FLAG_SHARED: u32 = 4u;     // mode `shared` (else `reference`: a ray per froxel)
+const FLAG_MEDIA: u32 = 8u;      // the scene has participating media
+const FLAG_HISTORY: u32 = 16u;   // temporal reprojection has a valid history
+
+struct View {
+    view_proj: mat4x4f,
+    prev_view_proj: mat4x4f,
+    position: vec3f,
+    near: f32,
+    forward: vec3f,
+    far: f32,
+    right: vec3f,
+    tan_x: f32,
+    up: vec3f,
+    tan_y: f32,
+    size: vec2u,
+    froxel_dims: vec2u,
+    frustum_dims: vec2u,
+    froxel_px: u32,
+    frustum_px: u32,
+    froxel_base: u32,
+    frustum_base: u32,
+    pixel_base: u32,
+    jitter: f32,
+}
+
+struct Light {
+    position: vec3f,
+    kind: u32,        // 0 directional, 1 point, 2 spot
+    direction: vec3f, // direction of travel
+    cos_outer: f32,
+    radiance: vec3f,
+    cos_inner: f32,
+}
+
+struct Medium {
+    min: vec3f,
+    kind: u32,        // 0 constant, 1 height, 2 box, 3 sphere
+    max: vec3f,
+    absorption: f32,
+    scattering: vec3f,
+    g: f32,
+    emission: vec3f,
+    radius_or_falloff: f32,
+    wind: vec3f,
+    base_y: f32,
+    noise_frequency: f32,
+    noise_octaves: u32,
+    noise_amplitude: f32,
+    _pad: u32,
+}
+
+@group(0) @binding(0) var<storage, read> frame: Frame;
+@group(0) @binding(1) var<storage, read> views: array<View>;
+@group(0) @binding(2) var<storage, read> lights: array<Light>;
+@group(0) @binding(3) var<storage, read> media: array<Medium>;
+@group(0) @binding(4) var<storage, read> bvh_nodes: array<BvhNode>;
+@group(0) @binding(5) var<storage, read> bvh_tris: array<BvhTriangle>;
+@group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>>;
+
+// counters[]
+const C_GRID_RAYS: u32 = 0u;
+const C_FRUSTUM_RAYS: u32 = 1u;
+const C_LIGHTING_RAYS: u32 = 2u;
+const C_SURFACE_RAYS: u32 = 3u;
+const C_VOXELS_TRACED: u32 = 4u;
+const C_FROXELS_WITH_MEDIA: u32 = 5u;
+
+const PI: f32 = 3.14159265358979;
+// Froxels store S / max(σt, SIGMA_EPS); below it the σt → 0 limit S·d is used.
+const SIGMA_EPS: f32 = 1e-4;
+
+// Unit ray direction through pixel-space point `pix` (y down) of view `v`.
+fn view_ray(v: View, pix: vec2f) -> vec3f {
+    let ndc = vec2f(2.0 * pix.x / f32(v.size.x) - 1.0, 1.0 - 2.0 * pix.y / f32(v.size.y));
+    return normalize(v.forward + v.right * (ndc.x * v.tan_x) + v.up * (ndc.y * v.tan_y));
+}
+
+// View depth of the boundary at (fractional) slice coordinate `s`: exponential
+// distribution between near and far (Hillaire 2015 / Wronski 2014).
+fn slice_depth(v: View, s: f32) -> f32 {
+    return v.near * pow(v.far / v.near, s / f32(frame.slices));
+}
+
+// Fractional slice coordinate of view depth `z`.
+fn depth_to_slice(v: View, z: f32) -> f32 {
+    return f32(frame.slices) * log(max(z, v.near) / v.near) / log(v.far / v.near);
+}
+
+// Direction from `p` towards light `l` (xyz) and the shadow-ray length (w).
+fn to_light(l: Light, p: vec3f) -> vec4f {
+    if l.kind == 0u {
+        return vec4f(-l.direction, frame.max_ray_m);
+    }
+    let d = l.position - p;
+    let dist = length(d);
+    return vec4f(d / max(dist, 1e-6), dist);
+}
+
+// Radiance arriving at `p` from `l`, ignoring occlusion. Point and spot lights fall
+// off with the inverse square of the distance, clamped at 0.1 m so that a light inside
+// a voxel or at a froxel centre stays finite.
+fn light_radiance(l: Light, p: vec3f) -> vec3f {
+    if l.kind == 0u {
+        return l.radiance;
+    }
+    let d = l.position - p;
+    let dist2 = max(dot(d, d), 0.01);
+    var r = l.radiance / dist2;
+    if l.kind == 2u {
+        let c = dot(-d * inverseSqrt(max(dot(d, d), 1e-12)), l.direction);
+        r *= smoothstep(l.cos_outer, l.cos_inner, c);
+    }
+    return r;
+}
+
+fn hash3(c: vec3i) -> u32 {
+    var h = (bitcast<u32>(c.x) * 0x8da6b343u) ^ (bitcast<u32>(c.y) * 0xd8163841u) ^ (bitcast<u32>(c.z) * 0xcb1ab31fu);
+    h ^= h >> 16u;
+    h *= 0x7feb352du;
+    h ^= h >> 15u;
+    h *= 0x846ca68bu;
+    h ^= h >> 16u;
+    return h;
+}
+
+fn lattice(c: vec3i) -> f32 {
+    return f32(hash3(c) >> 8u) * (1.0 / 16777216.0);
+}
+
+fn value_noise(p: vec3f) -> f32 {
+    let i = floor(p);
+    let f = p - i;
+    let u = f * f * (vec3f(3.0) - 2.0 * f);
+    let c = vec3i(i);
+    let x00 = mix(lattice(c), lattice(c + vec3i(1, 0, 0)), u.x);
+    let x10 = mix(lattice(c + vec3i(0, 1, 0)), lattice(c + vec3i(1, 1, 0)), u.x);
+    let x01 = mix(lattice(c + vec3i(0, 0, 1)), lattice(c + vec3i(1, 0, 1)), u.x);
+    let x11 = mix(lattice(c + vec3i(0, 1, 1)), lattice(c + vec3i(1, 1, 1)), u.x);
+    return mix(mix(x00, x10, u.y), mix(x01, x11, u.y), u.z);
+}
+
+fn fbm(p: vec3f, octaves: u32) -> f32 {
+    var sum = 0.0;
+    var amp = 1.0;
+    var norm = 0.0;
+    var q = p;
+    for (var i = 0u; i < octaves; i++) {
+        sum += amp * value_noise(q);
+        norm += amp;
+        amp *= 0.5;
+        q *= 2.0;
+    }
+    return sum / norm;
+}
+
+fn medium_density(m: Medium, p: vec3f) -> f32 {
+    let inside_box = all(p >= m.min) && all(p <= m.max);
+    var d = 0.0;
+    switch m.kind {
+        case 0u, 2u: { d = select(0.0, 1.0, inside_box); }
+        case 1u: { d = select(0.0, exp(-max(p.y - m.base_y, 0.0) / m.radius_or_falloff), inside_box); }
+        default: {
+            let c = (m.min + m.max) * 0.5;
+            let q = p - c;
+            d = select(0.0, 1.0, dot(q, q) <= m.radius_or_falloff * m.radius_or_falloff);
+        }
+    }
+    if d > 0.0 && m.noise_frequency > 0.0 {
+        let q = (p - m.min - m.wind * frame.time_s) * m.noise_frequency;
+        d *= max(1.0 + m.noise_amplitude * (2.0 * fbm(q, m.noise_octaves) - 1.0), 0.0);
+    }
+    return d;
+}
+
+struct MediumSample {
+    scattering: vec3f,
+    extinction: f32,   // grey: mean(σs) + σa
+    emission: vec3f,
+    g: f32,
+}
+
+fn sample_media(p: vec3f) -> MediumSample {
+    var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
+    var gw = 0.0;
+    for (var i = 0u; i < frame.medium_count; i++) {
+        let m = media[i];
+        let d = medium_density(m, p);
+        if d <= 0.0 {
+            continue;
+        }
+        let ss = m.scattering * d;
+        s.scattering += ss;
+        s.extinction += (ss.x + ss.y + ss.z) / 3.0 + m.absorption * d;
+        s.emission += m.emission * d;
+        let w = ss.x + ss.y + ss.z;
+        s.g += m.g * w;
+        gw += w;
+    }
+    if gw > 0.0 {
+        s.g /= gw;
+    }
+    return s;
+}
+
+// Henyey-Greenstein; cos_theta between the light's travel direction and the scattered one.
+fn hg_phase(g: f32, cos_theta: f32) -> f32 {
+    let denom = max(1.0 + g * g - 2.0 * g * cos_theta, 1e-12);
+    return (1.0 - g) * (1.0 + g) / (4.0 * PI * denom * sqrt(denom));
+}
+
+// In-scattered radiance per metre at `p` seen along `view_dir`, given the visibility
+// of each light (0..1). Ambient light is isotropic (phase integrates to 1).
+fn in_scattering(m: MediumSample, p: vec3f, view_dir: vec3f, vis: array<f32, 8>) -> vec3f {
+    var l_in = frame.ambient;
+    for (var i = 0u; i < frame.light_count; i++) {
+        if vis[i] <= 0.0 {
+            continue;
+        }
+        let l = lights[i];
+        let wl = -to_light(l, p).xyz;
+        l_in += light_radiance(l, p) * hg_phase(m.g, dot(wl, -view_dir)) * vis[i];
+    }
+    return m.scattering * l_in + m.emission;
+}
+
+fn pack_rgba16(v: vec4f) -> vec2u {
+    return vec2u(pack2x16float(v.xy), pack2x16float(v.zw));
+}
+
+fn unpack_rgba16(p: vec2u) -> vec4f {
+    return vec4f(unpack2x16float(p.x), unpack2x16float(p.y));
+}

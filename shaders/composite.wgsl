@@ -1,0 +1,113 @@
+// Composite + tone map, all viewers in one dispatch: surface shading with ray-traced
+// shadows, then `surface × transmittance + in-scattered` from the integrated volume
+// at the pixel's depth (000 §3.1.4), ACES-fitted tone curve, sRGB, RGBA8 out.
+
+@group(1) @binding(0) var<storage, read> integrated: array<vec2u>;
+@group(1) @binding(1) var<storage, read_write> output: array<u32>;
+@group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
+@group(1) @binding(3) var gbuf_normal: texture_2d_array<f32>;
+@group(1) @binding(4) var gbuf_albedo: texture_2d_array<f32>;
+
+var<workgroup> wg_rays: atomic<u32>;
+
+fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
+    if s < 0 {
+        return vec4f(0.0, 0.0, 0.0, 1.0);
+    }
+    let i = v.froxel_base + x + v.froxel_dims.x * (y + v.froxel_dims.y * u32(s));
+    return unpack_rgba16(integrated[i]);
+}
+
+// Trilinear lookup: bilinear between froxel column centres, linear between slice
+// boundaries (boundary b holds integrated[b − 1]; boundary 0 is the eye).
+fn sample_integrated(v: View, pix: vec2f, depth: f32) -> vec4f {
+    let w = clamp(depth_to_slice(v, depth), 0.0, f32(frame.slices));
+    let s0 = min(floor(w), f32(frame.slices) - 1.0);
+    let fs = w - s0;
+    let c = pix / f32(v.froxel_px) - 0.5;
+    let cmax = vec2f(v.froxel_dims) - 1.0;
+    let c0 = clamp(floor(c), vec2f(0.0), cmax);
+    let c1 = min(c0 + 1.0, cmax);
+    let f = clamp(c - c0, vec2f(0.0), vec2f(1.0));
+    var acc = vec4f(0.0);
+    for (var k = 0u; k < 4u; k++) {
+        let sx = select(c0.x, c1.x, (k & 1u) != 0u);
+        let sy = select(c0.y, c1.y, (k & 2u) != 0u);
+        let wx = select(1.0 - f.x, f.x, (k & 1u) != 0u);
+        let wy = select(1.0 - f.y, f.y, (k & 2u) != 0u);
+        let a = fetch_integrated(v, u32(sx), u32(sy), i32(s0) - 1);
+        let b = fetch_integrated(v, u32(sx), u32(sy), i32(s0));
+        acc += wx * wy * mix(a, b, fs);
+    }
+    return acc;
+}
+
+fn aces(x: vec3f) -> vec3f {
+    return clamp(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), vec3f(0.0), vec3f(1.0));
+}
+
+fn srgb(c: vec3f) -> vec3f {
+    return select(1.055 * pow(c, vec3f(1.0 / 2.4)) - 0.055, c * 12.92, c <= vec3f(0.0031308));
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+    if lid == 0u {
+        atomicStore(&wg_rays, 0u);
+    }
+    workgroupBarrier();
+    if gid.z < frame.view_count {
+        let v = views[gid.z];
+        if gid.x < v.size.x && gid.y < v.size.y {
+            let texel = vec2i(gid.xy);
+            let layer = i32(gid.z);
+            let pos = textureLoad(gbuf_position, texel, layer, 0);
+            let pix = vec2f(gid.xy) + 0.5;
+            let dir = view_ray(v, pix);
+            var color = frame.sky;
+            var depth = v.far;
+            var rays = 0u;
+            if pos.w > 0.0 {
+                depth = pos.w;
+                let p = pos.xyz;
+                var n = textureLoad(gbuf_normal, texel, layer, 0).xyz;
+                if dot(n, dir) > 0.0 {
+                    n = -n;
+                }
+                let albedo = textureLoad(gbuf_albedo, texel, layer, 0).rgb;
+                var irradiance = frame.ambient * PI;
+                // Offset along the normal, scaled with distance (depth precision).
+                let origin = p + n * (2e-3 + depth * 2e-4);
+                for (var li = 0u; li < frame.light_count; li++) {
+                    let l = lights[li];
+                    let tl = to_light(l, origin);
+                    let ndl = dot(n, tl.xyz);
+                    if ndl <= 0.0 {
+                        continue;
+                    }
+                    let radiance = light_radiance(l, origin);
+                    if all(radiance == vec3f(0.0)) {
+                        continue;
+                    }
+                    rays += 1u;
+                    if light_visible(l, origin) {
+                        irradiance += radiance * ndl;
+                    }
+                }
+                color = albedo / PI * irradiance;
+            }
+            if (frame.flags & FLAG_MEDIA) != 0u {
+                let fog = sample_integrated(v, pix, depth);
+                color = color * fog.w + fog.rgb;
+            }
+            let ldr = srgb(aces(color * frame.exposure));
+            let q = vec4u(vec3u(round(clamp(ldr, vec3f(0.0), vec3f(1.0)) * 255.0)), 255u);
+            atomicAdd(&wg_rays, rays);
+            output[v.pixel_base + gid.x + gid.y * v.size.x] = q.x | (q.y << 8u) | (q.z << 16u) | (q.w << 24u);
+        }
+    }
+    workgroupBarrier();
+    if lid == 0u {
+        atomicAdd(&counters[C_SURFACE_RAYS], atomicLoad(&wg_rays));
+    }
+}

@@ -1,0 +1,201 @@
+//! Device selection, buffer helpers and readback.
+
+use anyhow::{anyhow, Context as _};
+use wgpu::util::DeviceExt as _;
+
+/// The wgpu device and queue fogcast renders with, and what the adapter can do.
+pub struct GpuContext {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// Adapter name, driver and type, for logs and stats.
+    pub adapter_info: wgpu::AdapterInfo,
+    /// Whether compute and render passes can write timestamps.
+    pub has_timestamps: bool,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period_ns: f32,
+    /// Largest storage buffer binding, bytes.
+    pub max_storage_binding: u64,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext").field("adapter", &self.adapter_info.name).finish()
+    }
+}
+
+impl GpuContext {
+    /// Opens the first Vulkan adapter (a GPU if there is one, else lavapipe).
+    ///
+    /// Vulkan is forced unless `WGPU_BACKEND` says otherwise: wgpu's GL backend on
+    /// llvmpipe writes only slice 0 of 3D storage textures (DESIGN.md §8).
+    pub fn new() -> anyhow::Result<GpuContext> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        if std::env::var_os("WGPU_BACKEND").is_none() {
+            desc.backends = wgpu::Backends::VULKAN;
+        }
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| {
+            anyhow!(
+                "no Vulkan adapter found ({e}). On a machine without a GPU install Mesa's software \
+                 driver: `make deps` (or `apt-get install mesa-vulkan-drivers libvulkan1`)"
+            )
+        })?;
+        let info = adapter.get_info();
+        let features = adapter.features();
+        let has_timestamps = features.contains(wgpu::Features::TIMESTAMP_QUERY);
+        let mut required_features = wgpu::Features::empty();
+        if has_timestamps {
+            required_features |= wgpu::Features::TIMESTAMP_QUERY;
+        }
+        let adapter_limits = adapter.limits();
+        let required_limits = wgpu::Limits {
+            max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size,
+            max_buffer_size: adapter_limits.max_buffer_size,
+            max_storage_buffers_per_shader_stage: adapter_limits.max_storage_buffers_per_shader_stage.min(16),
+            max_texture_array_layers: adapter_limits.max_texture_array_layers,
+            max_compute_workgroups_per_dimension: adapter_limits.max_compute_workgroups_per_dimension,
+            ..wgpu::Limits::default()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("fogcast"),
+            required_features,
+            required_limits,
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .context("requesting a wgpu device")?;
+        tracing::info!(adapter = %info.name, driver = %info.driver_info, "GPU adapter");
+        Ok(GpuContext {
+            timestamp_period_ns: queue.get_timestamp_period(),
+            device,
+            queue,
+            adapter_info: info,
+            has_timestamps,
+            max_storage_binding: adapter_limits.max_storage_buffer_binding_size as u64,
+        })
+    }
+
+    /// A storage buffer initialised with `data` (never empty: one zero word at least).
+    pub fn storage_init<T: bytemuck::Pod>(&self, label: &str, data: &[T], extra: wgpu::BufferUsages) -> wgpu::Buffer {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let zero = [0u8; 16];
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: if bytes.is_empty() { &zero } else { bytes },
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
+        })
+    }
+
+    /// A zeroed storage buffer of `size` bytes (rounded up to 16).
+    pub fn storage(&self, label: &str, size: u64, extra: wgpu::BufferUsages) -> anyhow::Result<wgpu::Buffer> {
+        let size = size.max(16).next_multiple_of(16);
+        anyhow::ensure!(
+            size <= self.max_storage_binding,
+            "{label} needs {:.1} MiB but the adapter binds at most {:.1} MiB per buffer; use fewer viewers, a smaller resolution or a larger voxel size",
+            size as f64 / 1048576.0,
+            self.max_storage_binding as f64 / 1048576.0
+        );
+        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC | extra,
+            mapped_at_creation: false,
+        }))
+    }
+
+    /// Compiles WGSL assembled from `parts` (shared includes first, the stage last).
+    pub fn shader(&self, label: &str, parts: &[&str]) -> wgpu::ShaderModule {
+        self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
+        })
+    }
+
+    /// A compute pipeline with an explicit layout.
+    pub fn compute_pipeline(&self, label: &str, module: &wgpu::ShaderModule, layouts: &[&wgpu::BindGroupLayout]) -> wgpu::ComputePipeline {
+        let layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(|l| Some(*l)).collect();
+        let layout = self.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(label),
+            bind_group_layouts: &layouts,
+            immediate_size: 0,
+        });
+        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(label),
+            layout: Some(&layout),
+            module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        })
+    }
+
+    /// A bind group layout of storage buffers for compute, `true` = read-write.
+    pub fn storage_layout(&self, label: &str, read_write: &[bool]) -> wgpu::BindGroupLayout {
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = read_write
+            .iter()
+            .enumerate()
+            .map(|(i, rw)| storage_entry(i as u32, !rw))
+            .collect();
+        self.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries: &entries })
+    }
+
+    /// A bind group binding `buffers` in order.
+    pub fn bind_buffers(&self, label: &str, layout: &wgpu::BindGroupLayout, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
+    }
+
+    /// Copies `buffer` to the host (blocking).
+    pub fn read_buffer(&self, buffer: &wgpu::Buffer) -> anyhow::Result<Vec<u8>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: buffer.size(),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, buffer.size());
+        self.queue.submit([enc.finish()]);
+        map_read(&self.device, &staging)
+    }
+}
+
+/// A compute-visible storage buffer binding.
+pub fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// Maps a MAP_READ buffer, waits, and copies its contents out.
+pub fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> anyhow::Result<Vec<u8>> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).context("waiting for the GPU")?;
+    rx.recv().context("map callback dropped")?.context("mapping a readback buffer")?;
+    let data = staging.get_mapped_range(..).map_err(|e| anyhow!("{e:?}"))?.to_vec();
+    staging.unmap();
+    Ok(data)
+}

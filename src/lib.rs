@@ -1,0 +1,18 @@
+//! fogcast: participating media (fog, light shafts, dust, smoke) for many viewers of one
+//! scene on one GPU, with the view-independent shadow work shared in a world-space grid
+//! (Stojanovic et al., HPG 2023 — `shared/papers/000`).
+//!
+//! - [`scene`]: scene files, built-in scenes, glTF, the BVH for shadow rays.
+//! - [`gpu`]: device selection and buffer helpers.
+//! - [`render`]: the froxel pipeline (`reference` and `shared` modes).
+//! - [`metrics`]: image error (FLIP, PSNR, RMSE).
+
+#![deny(missing_docs)]
+#![warn(unreachable_pub)]
+#![forbid(unsafe_code)]
+
+pub mod gpu;
+pub mod metrics;
+pub mod output;
+pub mod render;
+pub mod scene;

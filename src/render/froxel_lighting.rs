@@ -1,0 +1,49 @@
+//! Stage 3 (paper 000 §3.1.3): in-scattering and extinction per froxel, all viewers in
+//! one dispatch, with `shaders/froxel_lighting.wgsl`.
+
+use super::{compute_pass, SharedShadowGrid, Stage, Timestamps, ViewerVolumes};
+use crate::gpu::GpuContext;
+
+/// Pipeline of the froxel lighting stage.
+pub(crate) struct FroxelLighting {
+    layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::ComputePipeline,
+}
+
+impl FroxelLighting {
+    pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
+        let layout = ctx.storage_layout("froxel lighting", &[false, false, true, false]);
+        let module = ctx.shader("froxel_lighting", &[super::COMMON_WGSL, super::BVH_WGSL, include_str!("../../shaders/froxel_lighting.wgsl")]);
+        FroxelLighting { pipeline: ctx.compute_pipeline("froxel_lighting", &module, &[scene_layout, &layout]), layout }
+    }
+
+    pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
+        let [x, y] = volumes.layout.froxel_dims;
+        [x.div_ceil(8), y.div_ceil(8), volumes.slices * volumes.count as u32]
+    }
+
+    /// `grid` is `None` in `reference` mode, where every froxel traces its own rays.
+    pub(crate) fn add_pass(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &wgpu::BindGroup,
+        grid: Option<&SharedShadowGrid>,
+        volumes: &ViewerVolumes,
+        ts: &Timestamps,
+    ) {
+        // In reference mode the grid binding is unused; the frustum buffer stands in.
+        let grid_buffer = grid.map_or(&volumes.frustum, |g| &g.grid);
+        let bg = ctx.bind_buffers(
+            "froxel lighting",
+            &self.layout,
+            &[grid_buffer, &volumes.frustum, &volumes.froxels, &volumes.froxel_history],
+        );
+        let mut pass = compute_pass(enc, "froxel_lighting", ts.writes(Stage::FroxelLighting));
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, scene, &[]);
+        pass.set_bind_group(1, &bg, &[]);
+        let [x, y, z] = Self::workgroups(volumes);
+        pass.dispatch_workgroups(x, y, z);
+    }
+}

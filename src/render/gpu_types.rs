@@ -1,0 +1,138 @@
+//! Host mirrors of the structs in `shaders/common.wgsl` (layouts must match byte for byte).
+
+use crate::scene::{Light, Medium, MediumKind};
+use bytemuck::{Pod, Zeroable};
+
+pub(crate) const FLAG_PARITY: u32 = 1;
+pub(crate) const FLAG_TRILINEAR: u32 = 2;
+pub(crate) const FLAG_SHARED: u32 = 4;
+pub(crate) const FLAG_MEDIA: u32 = 8;
+pub(crate) const FLAG_HISTORY: u32 = 16;
+
+/// Indices into the counters buffer (`C_*` in common.wgsl).
+pub(crate) const COUNTERS: usize = 8;
+pub(crate) const C_GRID_RAYS: usize = 0;
+pub(crate) const C_FRUSTUM_RAYS: usize = 1;
+pub(crate) const C_LIGHTING_RAYS: usize = 2;
+pub(crate) const C_SURFACE_RAYS: usize = 3;
+pub(crate) const C_VOXELS_TRACED: usize = 4;
+pub(crate) const C_FROXELS_WITH_MEDIA: usize = 5;
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub(crate) struct FrameGpu {
+    pub grid_min: [f32; 3],
+    pub voxel_size: f32,
+    pub grid_dims: [u32; 3],
+    pub light_count: u32,
+    pub sky: [f32; 3],
+    pub medium_count: u32,
+    pub ambient: [f32; 3],
+    pub exposure: f32,
+    pub view_count: u32,
+    pub frame_index: u32,
+    pub flags: u32,
+    pub time_s: f32,
+    pub grid_words_x: u32,
+    pub max_ray_m: f32,
+    pub frustum_slices: u32,
+    pub slices: u32,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub(crate) struct ViewGpu {
+    pub view_proj: [[f32; 4]; 4],
+    pub prev_view_proj: [[f32; 4]; 4],
+    pub position: [f32; 3],
+    pub near: f32,
+    pub forward: [f32; 3],
+    pub far: f32,
+    pub right: [f32; 3],
+    pub tan_x: f32,
+    pub up: [f32; 3],
+    pub tan_y: f32,
+    pub size: [u32; 2],
+    pub froxel_dims: [u32; 2],
+    pub frustum_dims: [u32; 2],
+    pub froxel_px: u32,
+    pub frustum_px: u32,
+    pub froxel_base: u32,
+    pub frustum_base: u32,
+    pub pixel_base: u32,
+    pub jitter: f32,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub(crate) struct LightGpu {
+    pub position: [f32; 3],
+    pub kind: u32,
+    pub direction: [f32; 3],
+    pub cos_outer: f32,
+    pub radiance: [f32; 3],
+    pub cos_inner: f32,
+}
+
+impl From<&Light> for LightGpu {
+    fn from(l: &Light) -> Self {
+        LightGpu {
+            position: l.position.to_array(),
+            kind: l.kind,
+            direction: l.direction.to_array(),
+            cos_outer: l.cos_outer,
+            radiance: l.radiance.to_array(),
+            cos_inner: l.cos_inner,
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub(crate) struct MediumGpu {
+    pub min: [f32; 3],
+    pub kind: u32,
+    pub max: [f32; 3],
+    pub absorption: f32,
+    pub scattering: [f32; 3],
+    pub g: f32,
+    pub emission: [f32; 3],
+    pub radius_or_falloff: f32,
+    pub wind: [f32; 3],
+    pub base_y: f32,
+    pub noise_frequency: f32,
+    pub noise_octaves: u32,
+    pub noise_amplitude: f32,
+    pub _pad: u32,
+}
+
+impl From<&Medium> for MediumGpu {
+    fn from(m: &Medium) -> Self {
+        MediumGpu {
+            min: m.min.to_array(),
+            kind: match m.kind {
+                MediumKind::Constant => 0,
+                MediumKind::Height => 1,
+                MediumKind::Box => 2,
+                MediumKind::Sphere => 3,
+            },
+            max: m.max.to_array(),
+            absorption: m.absorption,
+            scattering: m.scattering.to_array(),
+            g: m.g,
+            emission: m.emission.to_array(),
+            radius_or_falloff: m.radius_or_falloff,
+            wind: m.noise.wind,
+            base_y: m.base_y,
+            noise_frequency: m.noise.frequency,
+            noise_octaves: m.noise.octaves,
+            noise_amplitude: m.noise.amplitude,
+            _pad: 0,
+        }
+    }
+}
+
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 96);
+const _: () = assert!(std::mem::size_of::<ViewGpu>() == 240);
+const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
+const _: () = assert!(std::mem::size_of::<MediumGpu>() == 96);

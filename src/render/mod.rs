@@ -1,0 +1,471 @@
+//! The froxel renderer: the four stages of paper 000 §3.1 plus G-buffer and composite.
+//!
+//! [`Renderer::render`] reads top to bottom as the frame runs: upload, G-buffer,
+//! shared grid (world space, once), shadow frustums, froxel lighting, integration and
+//! composite (each one dispatch for all viewers), then one readback.
+
+mod composite;
+mod froxel_lighting;
+mod gbuffer;
+mod gpu_types;
+mod scene_gpu;
+mod shadow_frustum;
+mod shared_grid;
+mod stats;
+mod viewer_volumes;
+mod volume_integration;
+
+pub use shared_grid::SharedShadowGrid;
+pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming};
+pub use viewer_volumes::{ViewerLayout, ViewerVolumes};
+
+use crate::gpu::{map_read, GpuContext};
+use crate::scene::{Bvh, Camera, Scene};
+use gpu_types::*;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::Instant;
+
+pub(crate) const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
+pub(crate) const BVH_WGSL: &str = include_str!("../../shaders/bvh.wgsl");
+
+/// How shadows in the fog are computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Paper 000's baseline: a shadow ray per light per froxel, per viewer.
+    Reference,
+    /// Paper 000's method: shared world grid + per-viewer shadow frustum.
+    Shared,
+}
+
+/// Every parameter of paper 000, with its defaults.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    /// Rendering mode.
+    pub mode: Mode,
+    /// Shared grid voxel edge, metres.
+    pub voxel_size_m: f32,
+    /// Pixels per froxel of the lighting volume (8 in the paper).
+    pub froxel_px: u32,
+    /// Depth slices of the lighting volume (128 in the paper).
+    pub slices: u32,
+    /// Pixels per froxel of the shadow frustum (16 in the paper).
+    pub frustum_px: u32,
+    /// Fraction of the slices covered by the shadow frustum (1/3 in the paper; 0 = off).
+    pub frustum_slice_fraction: f32,
+    /// Alternate z-parity grid updates (half the grid per frame).
+    pub parity: bool,
+    /// 8-voxel trilinear grid lookup instead of the nearest voxel.
+    pub trilinear: bool,
+    /// Temporal jitter along view rays + reprojection of last frame's froxels.
+    pub temporal: bool,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            mode: Mode::Shared,
+            voxel_size_m: 0.25,
+            froxel_px: 8,
+            slices: 128,
+            frustum_px: 16,
+            frustum_slice_fraction: 1.0 / 3.0,
+            parity: false,
+            trilinear: true,
+            temporal: false,
+        }
+    }
+}
+
+impl Settings {
+    /// Checks ranges; the error names the setting and value.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(self.voxel_size_m.is_finite() && self.voxel_size_m >= 0.01, "voxel size {} m: must be at least 0.01 m", self.voxel_size_m);
+        anyhow::ensure!((1..=64).contains(&self.froxel_px), "froxel size {} px: must be 1..=64", self.froxel_px);
+        anyhow::ensure!((2..=512).contains(&self.slices), "slices {}: must be 2..=512", self.slices);
+        anyhow::ensure!((1..=128).contains(&self.frustum_px), "shadow frustum froxel size {} px: must be 1..=128", self.frustum_px);
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.frustum_slice_fraction),
+            "shadow frustum slice fraction {}: must be 0..=1",
+            self.frustum_slice_fraction
+        );
+        Ok(())
+    }
+
+    fn frustum_slices(&self) -> u32 {
+        (self.slices as f32 * self.frustum_slice_fraction).ceil() as u32
+    }
+}
+
+/// Stages with a GPU time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Stage {
+    GBuffer = 0,
+    SharedGrid = 1,
+    ShadowFrustum = 2,
+    FroxelLighting = 3,
+    VolumeIntegration = 4,
+    Composite = 5,
+}
+
+const STAGES: [(Stage, &str); 6] = [
+    (Stage::GBuffer, "gbuffer"),
+    (Stage::SharedGrid, "shared_grid"),
+    (Stage::ShadowFrustum, "shadow_frustum"),
+    (Stage::FroxelLighting, "froxel_lighting"),
+    (Stage::VolumeIntegration, "volume_integration"),
+    (Stage::Composite, "composite"),
+];
+
+/// Timestamp queries for each stage, when the adapter has them.
+pub(crate) struct Timestamps {
+    set: Option<wgpu::QuerySet>,
+}
+
+impl Timestamps {
+    fn writes(&self, stage: Stage) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
+        self.set.as_ref().map(|q| wgpu::ComputePassTimestampWrites {
+            query_set: q,
+            beginning_of_pass_write_index: Some(stage as u32 * 2),
+            end_of_pass_write_index: Some(stage as u32 * 2 + 1),
+        })
+    }
+
+    fn render_writes(&self, stage: Stage, first: bool, last: bool) -> Option<wgpu::RenderPassTimestampWrites<'_>> {
+        let q = self.set.as_ref()?;
+        (first || last).then_some(wgpu::RenderPassTimestampWrites {
+            query_set: q,
+            beginning_of_pass_write_index: first.then_some(stage as u32 * 2),
+            end_of_pass_write_index: last.then_some(stage as u32 * 2 + 1),
+        })
+    }
+}
+
+pub(crate) fn compute_pass<'e>(enc: &'e mut wgpu::CommandEncoder, label: &str, ts: Option<wgpu::ComputePassTimestampWrites<'_>>) -> wgpu::ComputePass<'e> {
+    enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(label), timestamp_writes: ts })
+}
+
+/// One rendered frame: an RGBA8 image per viewer and the frame's counters.
+#[derive(Debug, Clone)]
+pub struct FrameOutput {
+    /// Width of every image, pixels.
+    pub width: u32,
+    /// Height of every image, pixels.
+    pub height: u32,
+    /// One tightly packed RGBA8 image per viewer.
+    pub images: Vec<Vec<u8>>,
+    /// Counters, memory and timings.
+    pub stats: FrameStats,
+}
+
+/// Renders a scene for many viewers at once.
+pub struct Renderer {
+    ctx: Arc<GpuContext>,
+    scene: Arc<Scene>,
+    settings: Settings,
+    scene_gpu: scene_gpu::SceneGpu,
+    grid: Option<SharedShadowGrid>,
+    volumes: Option<ViewerVolumes>,
+    gbuffer: gbuffer::GBuffer,
+    frustum: shadow_frustum::ShadowFrustum,
+    lighting: froxel_lighting::FroxelLighting,
+    integration: volume_integration::VolumeIntegration,
+    composite: composite::Composite,
+    timestamps: Timestamps,
+    ts_resolve: Option<wgpu::Buffer>,
+    frame_index: u32,
+    prev_view_proj: Vec<glam::Mat4>,
+    triangles: usize,
+}
+
+impl Renderer {
+    /// Builds the BVH and every pipeline for `scene`.
+    pub fn new(ctx: Arc<GpuContext>, scene: Arc<Scene>, settings: Settings) -> anyhow::Result<Renderer> {
+        settings.validate()?;
+        let t = Instant::now();
+        let bvh = Bvh::build(&scene.mesh)?;
+        tracing::info!(triangles = bvh.triangle_count(), nodes = bvh.gpu_nodes.len(), ms = t.elapsed().as_millis() as u64, "BVH built");
+        Self::with_bvh(ctx, scene, &bvh, settings)
+    }
+
+    /// As [`Renderer::new`], reusing a BVH built before.
+    pub fn with_bvh(ctx: Arc<GpuContext>, scene: Arc<Scene>, bvh: &Bvh, settings: Settings) -> anyhow::Result<Renderer> {
+        settings.validate()?;
+        let scene_gpu = scene_gpu::SceneGpu::new(&ctx, &scene, bvh)?;
+        let grid = match (settings.mode, scene.media_bounds()) {
+            (Mode::Shared, Some(bounds)) if !scene.lights.is_empty() => {
+                Some(SharedShadowGrid::new(&ctx, &scene_gpu.layout, bounds, settings.voxel_size_m)?)
+            }
+            _ => None,
+        };
+        let set = ctx.has_timestamps.then(|| {
+            ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("stage timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: STAGES.len() as u32 * 2,
+            })
+        });
+        let ts_resolve = set.as_ref().map(|_| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp resolve"),
+                size: STAGES.len() as u64 * 16,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        });
+        Ok(Renderer {
+            gbuffer: gbuffer::GBuffer::new(&ctx),
+            frustum: shadow_frustum::ShadowFrustum::new(&ctx, &scene_gpu.layout),
+            lighting: froxel_lighting::FroxelLighting::new(&ctx, &scene_gpu.layout),
+            integration: volume_integration::VolumeIntegration::new(&ctx, &scene_gpu.layout),
+            composite: composite::Composite::new(&ctx, &scene_gpu.layout),
+            triangles: bvh.triangle_count(),
+            scene_gpu,
+            grid,
+            volumes: None,
+            timestamps: Timestamps { set },
+            ts_resolve,
+            frame_index: 0,
+            prev_view_proj: Vec::new(),
+            ctx,
+            scene,
+            settings,
+        })
+    }
+
+    /// The settings in force.
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    /// The shared grid (mode `shared` with media and lights only).
+    pub fn shared_grid(&self) -> Option<&SharedShadowGrid> {
+        self.grid.as_ref()
+    }
+
+    /// Reads the shared grid's words and touched nibbles back (for tests and tools).
+    pub fn read_shared_grid(&self) -> anyhow::Result<Option<(Vec<u32>, Vec<u32>)>> {
+        let Some(g) = &self.grid else { return Ok(None) };
+        let words = bytemuck::cast_slice(&self.ctx.read_buffer(&g.grid)?).to_vec();
+        let touched = bytemuck::cast_slice(&self.ctx.read_buffer(&g.touched)?).to_vec();
+        Ok(Some((words, touched)))
+    }
+
+    fn ensure_volumes(&mut self, count: usize, width: u32, height: u32) -> anyhow::Result<()> {
+        let s = &self.settings;
+        let layout = ViewerLayout {
+            width,
+            height,
+            froxel_dims: [width.div_ceil(s.froxel_px), height.div_ceil(s.froxel_px)],
+            frustum_dims: [width.div_ceil(s.frustum_px), height.div_ceil(s.frustum_px)],
+        };
+        let fits = self.volumes.as_ref().is_some_and(|v| v.count == count && v.layout == layout);
+        if !fits {
+            self.volumes = Some(ViewerVolumes::new(&self.ctx, count, layout, s.slices, s.frustum_slices(), s.temporal)?);
+            self.prev_view_proj.clear();
+        }
+        Ok(())
+    }
+
+    fn upload(&mut self, cameras: &[Camera], time_s: f32) -> anyhow::Result<(u32, bool)> {
+        let scene = &self.scene;
+        let s = &self.settings;
+        let vol = self.volumes.as_ref().expect("volumes allocated before upload");
+        let (near, far) = (scene.render.near_m, scene.render.far_m);
+        let has_media = !scene.media.is_empty();
+        let history = s.temporal && vol.has_history && self.prev_view_proj.len() == cameras.len();
+        // Per-frame jitter along the view ray (a 1D low-discrepancy sequence), centred.
+        let jitter = if s.temporal { ((self.frame_index as f32 * 0.618_034).fract() - 0.5) * 0.999 } else { 0.0 };
+        let aspect = vol.layout.width as f32 / vol.layout.height as f32;
+        let mut views = Vec::with_capacity(cameras.len());
+        let mut view_projs = Vec::with_capacity(cameras.len());
+        for (i, c) in cameras.iter().enumerate() {
+            let vp = c.projection(aspect, near, far) * c.view();
+            let right = c.forward.cross(c.up()).normalize();
+            let up = right.cross(c.forward);
+            let tan_y = (c.fov_y * 0.5).tan();
+            let prev = if history { self.prev_view_proj[i] } else { vp };
+            views.push(ViewGpu {
+                view_proj: vp.to_cols_array_2d(),
+                prev_view_proj: prev.to_cols_array_2d(),
+                position: c.position.to_array(),
+                near,
+                forward: c.forward.to_array(),
+                far,
+                right: right.to_array(),
+                tan_x: tan_y * aspect,
+                up: up.to_array(),
+                tan_y,
+                size: [vol.layout.width, vol.layout.height],
+                froxel_dims: vol.layout.froxel_dims,
+                frustum_dims: vol.layout.frustum_dims,
+                froxel_px: s.froxel_px,
+                frustum_px: s.frustum_px,
+                froxel_base: i as u32 * vol.froxels_per_view(),
+                frustum_base: i as u32 * vol.frustum_per_view(),
+                pixel_base: i as u32 * vol.layout.width * vol.layout.height,
+                jitter,
+            });
+            view_projs.push(vp);
+        }
+        self.prev_view_proj = view_projs;
+        let mut flags = 0;
+        if s.parity {
+            flags |= FLAG_PARITY;
+        }
+        if s.trilinear {
+            flags |= FLAG_TRILINEAR;
+        }
+        if s.mode == Mode::Shared {
+            flags |= FLAG_SHARED;
+        }
+        if has_media {
+            flags |= FLAG_MEDIA;
+        }
+        if history {
+            flags |= FLAG_HISTORY;
+        }
+        let (lo, hi) = scene.bounds;
+        let g = self.grid.as_ref();
+        let frame = FrameGpu {
+            grid_min: g.map_or([0.0; 3], |g| g.min.to_array()),
+            voxel_size: g.map_or(1.0, |g| g.voxel_size_m),
+            grid_dims: g.map_or([1; 3], |g| g.dims.to_array()),
+            light_count: scene.lights.len() as u32,
+            sky: scene.render.sky,
+            medium_count: scene.media.len() as u32,
+            ambient: scene.render.ambient,
+            exposure: scene.render.exposure,
+            view_count: cameras.len() as u32,
+            frame_index: self.frame_index,
+            flags,
+            time_s,
+            grid_words_x: g.map_or(1, |g| g.words_x),
+            // A directional shadow ray never needs to be longer than the scene.
+            max_ray_m: (hi - lo).length() + 1.0,
+            frustum_slices: if s.mode == Mode::Shared { s.frustum_slices() } else { 0 },
+            slices: s.slices,
+        };
+        self.scene_gpu.ensure_views(&self.ctx, cameras.len())?;
+        self.ctx.queue.write_buffer(&self.scene_gpu.frame, 0, bytemuck::bytes_of(&frame));
+        self.ctx.queue.write_buffer(&self.scene_gpu.views, 0, bytemuck::cast_slice(&views));
+        Ok((flags, has_media))
+    }
+
+    /// Renders one frame for every camera (all the same size) at scene time `time_s`.
+    pub fn render(&mut self, cameras: &[Camera], width: u32, height: u32, time_s: f32) -> anyhow::Result<FrameOutput> {
+        anyhow::ensure!(!cameras.is_empty(), "at least one viewer is needed");
+        anyhow::ensure!((1..=8192).contains(&width) && (1..=8192).contains(&height), "viewer size {width}×{height}: must be 1..=8192 on each side");
+        anyhow::ensure!(time_s.is_finite(), "scene time {time_s} must be finite");
+        for (i, c) in cameras.iter().enumerate() {
+            anyhow::ensure!(
+                c.position.is_finite() && c.forward.is_finite() && c.fov_y.is_finite() && c.fov_y > 0.0 && c.fov_y < 3.1,
+                "viewer {i}: camera {c:?} is not finite or its field of view is out of range"
+            );
+        }
+        let started = Instant::now();
+        self.ensure_volumes(cameras.len(), width, height)?;
+        let (_, has_media) = self.upload(cameras, time_s)?;
+        let ctx = self.ctx.clone();
+        let has_lights = !self.scene.lights.is_empty();
+        let shared = self.settings.mode == Mode::Shared;
+        let vol = self.volumes.as_ref().expect("allocated above");
+        let scene_bg = &self.scene_gpu.bind_group;
+        let mut dispatches = Vec::new();
+
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        enc.clear_buffer(&self.scene_gpu.counters, 0, None);
+        self.gbuffer.add_passes(&ctx, &mut enc, &self.scene_gpu, vol, cameras, self.scene.render.near_m, self.scene.render.far_m, &self.timestamps);
+        // Passes with no work are skipped: no media means no froxel stages at all, and
+        // no lights means no shadow rays.
+        if has_media {
+            if shared && has_lights {
+                if let Some(grid) = &self.grid {
+                    grid.add_pass(&ctx, &mut enc, scene_bg, &self.timestamps);
+                    dispatches.push(("shared_grid", grid.workgroups()));
+                }
+                if vol.frustum_slices > 0 {
+                    self.frustum.add_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
+                    dispatches.push(("shadow_frustum", shadow_frustum::ShadowFrustum::workgroups(vol)));
+                }
+            }
+            self.lighting.add_pass(&ctx, &mut enc, scene_bg, self.grid.as_ref(), vol, &self.timestamps);
+            dispatches.push(("froxel_lighting", froxel_lighting::FroxelLighting::workgroups(vol)));
+            self.integration.add_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
+            dispatches.push(("volume_integration", volume_integration::VolumeIntegration::workgroups(vol)));
+            if self.settings.temporal {
+                enc.copy_buffer_to_buffer(&vol.froxels, 0, &vol.froxel_history, 0, vol.froxels.size());
+            }
+        }
+        self.composite.add_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
+        dispatches.push(("composite", composite::Composite::workgroups(vol)));
+
+        // One readback of images, counters and timestamps.
+        let staging = |size: u64, label: &str| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let pixels_bytes = vol.count as u64 * width as u64 * height as u64 * 4;
+        let image_staging = staging(pixels_bytes, "image readback");
+        enc.copy_buffer_to_buffer(&vol.output, 0, &image_staging, 0, pixels_bytes);
+        let counter_staging = staging(self.scene_gpu.counters.size(), "counter readback");
+        enc.copy_buffer_to_buffer(&self.scene_gpu.counters, 0, &counter_staging, 0, self.scene_gpu.counters.size());
+        let ts_staging = match (&self.timestamps.set, &self.ts_resolve) {
+            (Some(set), Some(resolve)) => {
+                enc.resolve_query_set(set, 0..STAGES.len() as u32 * 2, resolve, 0);
+                let s = staging(resolve.size(), "timestamp readback");
+                enc.copy_buffer_to_buffer(resolve, 0, &s, 0, resolve.size());
+                Some(s)
+            }
+            _ => None,
+        };
+        ctx.queue.submit([enc.finish()]);
+        let pixels = map_read(&ctx.device, &image_staging)?;
+        let counters: Vec<u32> = bytemuck::cast_slice(&map_read(&ctx.device, &counter_staging)?).to_vec();
+        let ticks: Option<Vec<u64>> = match ts_staging {
+            Some(s) => Some(bytemuck::cast_slice(&map_read(&ctx.device, &s)?).to_vec()),
+            None => None,
+        };
+        let frame_ms = started.elapsed().as_secs_f64() * 1e3;
+        if let Some(v) = self.volumes.as_mut() {
+            v.has_history = self.settings.temporal && has_media;
+        }
+        let vol = self.volumes.as_ref().expect("allocated above");
+
+        let ran: Vec<&str> = std::iter::once("gbuffer").chain(dispatches.iter().map(|(n, _)| *n)).collect();
+        let stage_ms = match &ticks {
+            Some(t) => STAGES
+                .iter()
+                .filter(|(_, name)| ran.contains(name))
+                .map(|(st, name)| {
+                    let i = *st as usize * 2;
+                    let ms = t[i + 1].saturating_sub(t[i]) as f64 * ctx.timestamp_period_ns as f64 * 1e-6;
+                    StageTiming { stage: name.to_string(), gpu_ms: ms }
+                })
+                .collect(),
+            None => Vec::new(),
+        };
+        let images = pixels.chunks_exact((width * height * 4) as usize).map(<[u8]>::to_vec).collect();
+        let stats = stats::build(stats::StatsInput {
+            settings: &self.settings,
+            scene: &self.scene,
+            triangles: self.triangles,
+            counters: &counters,
+            grid: self.grid.as_ref(),
+            scene_memory: &self.scene_gpu.memory,
+            volumes: vol,
+            stage_ms,
+            frame_ms,
+            dispatches,
+            frame_index: self.frame_index,
+            timestamps: ctx.has_timestamps,
+        });
+        self.frame_index = self.frame_index.wrapping_add(1);
+        Ok(FrameOutput { width, height, images, stats })
+    }
+}

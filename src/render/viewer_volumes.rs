@@ -1,0 +1,105 @@
+//! Per-viewer resources, stacked so that one dispatch covers every viewer.
+
+use crate::gpu::GpuContext;
+
+/// Sizes of one viewer's volumes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ViewerLayout {
+    /// Image size, pixels.
+    pub width: u32,
+    /// Image size, pixels.
+    pub height: u32,
+    /// Froxel grid (x, y) of the lighting volume.
+    pub froxel_dims: [u32; 2],
+    /// Froxel grid (x, y) of the shadow frustum.
+    pub frustum_dims: [u32; 2],
+}
+
+/// Every viewer's froxel volumes, shadow frustums, G-buffer and output image.
+///
+/// Viewer `i`'s froxels start at `i × froxels_per_view` in each stacked buffer.
+pub struct ViewerVolumes {
+    pub(crate) count: usize,
+    pub(crate) layout: ViewerLayout,
+    pub(crate) slices: u32,
+    pub(crate) frustum_slices: u32,
+    /// In-scattering (src rgb, σt), packed f16: the output of froxel lighting.
+    pub(crate) froxels: wgpu::Buffer,
+    /// Last frame's froxels (temporal reprojection), a 16-byte stub when off.
+    pub(crate) froxel_history: wgpu::Buffer,
+    pub(crate) integrated: wgpu::Buffer,
+    pub(crate) frustum: wgpu::Buffer,
+    pub(crate) output: wgpu::Buffer,
+    pub(crate) gbuf_position: wgpu::Texture,
+    pub(crate) gbuf_normal: wgpu::Texture,
+    pub(crate) gbuf_albedo: wgpu::Texture,
+    pub(crate) gbuf_depth: wgpu::Texture,
+    pub(crate) has_history: bool,
+}
+
+impl ViewerVolumes {
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        count: usize,
+        layout: ViewerLayout,
+        slices: u32,
+        frustum_slices: u32,
+        temporal: bool,
+    ) -> anyhow::Result<ViewerVolumes> {
+        let n = count as u64;
+        let froxels_per_view = (layout.froxel_dims[0] * layout.froxel_dims[1] * slices) as u64;
+        let frustum_per_view = (layout.frustum_dims[0] * layout.frustum_dims[1] * frustum_slices.max(1)) as u64;
+        let pixels = (layout.width * layout.height) as u64;
+        let tex = |label: &str, format: wgpu::TextureFormat| {
+            ctx.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d { width: layout.width, height: layout.height, depth_or_array_layers: count as u32 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            })
+        };
+        Ok(ViewerVolumes {
+            count,
+            layout,
+            slices,
+            frustum_slices,
+            froxels: ctx.storage("froxels", n * froxels_per_view * 8, wgpu::BufferUsages::empty())?,
+            froxel_history: ctx.storage("froxel history", if temporal { n * froxels_per_view * 8 } else { 16 }, wgpu::BufferUsages::empty())?,
+            integrated: ctx.storage("integrated", n * froxels_per_view * 8, wgpu::BufferUsages::empty())?,
+            frustum: ctx.storage("shadow frustum", n * frustum_per_view * 4, wgpu::BufferUsages::empty())?,
+            output: ctx.storage("output", n * pixels * 4, wgpu::BufferUsages::empty())?,
+            gbuf_position: tex("gbuffer position", wgpu::TextureFormat::Rgba32Float),
+            gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
+            gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
+            gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
+            has_history: false,
+        })
+    }
+
+    pub(crate) fn froxels_per_view(&self) -> u32 {
+        self.layout.froxel_dims[0] * self.layout.froxel_dims[1] * self.slices
+    }
+
+    pub(crate) fn frustum_per_view(&self) -> u32 {
+        self.layout.frustum_dims[0] * self.layout.frustum_dims[1] * self.frustum_slices.max(1)
+    }
+
+    /// (name, bytes per viewer) of every per-viewer resource.
+    pub(crate) fn memory_per_viewer(&self) -> Vec<(&'static str, u64)> {
+        let n = self.count.max(1) as u64;
+        let pixels = (self.layout.width * self.layout.height) as u64;
+        let history = if self.froxel_history.size() > 16 { self.froxel_history.size() / n } else { 0 };
+        vec![
+            ("froxels", self.froxels.size() / n),
+            ("froxel_history", history),
+            ("integrated", self.integrated.size() / n),
+            ("shadow_frustum", self.frustum.size() / n),
+            ("gbuffer", pixels * (16 + 8 + 4 + 4)),
+            ("output", self.output.size() / n),
+        ]
+    }
+}

@@ -1,0 +1,34 @@
+//! Stage 4 (paper 000 §3.1.4): front-to-back integration of every froxel column, all
+//! viewers in one dispatch, with `shaders/volume_integration.wgsl`.
+
+use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
+use crate::gpu::GpuContext;
+
+/// Pipeline of the volume integration stage.
+pub(crate) struct VolumeIntegration {
+    layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::ComputePipeline,
+}
+
+impl VolumeIntegration {
+    pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
+        let layout = ctx.storage_layout("volume integration", &[false, true]);
+        let module = ctx.shader("volume_integration", &[super::COMMON_WGSL, super::BVH_WGSL, include_str!("../../shaders/volume_integration.wgsl")]);
+        VolumeIntegration { pipeline: ctx.compute_pipeline("volume_integration", &module, &[scene_layout, &layout]), layout }
+    }
+
+    pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
+        let [x, y] = volumes.layout.froxel_dims;
+        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
+    }
+
+    pub(crate) fn add_pass(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, scene: &wgpu::BindGroup, volumes: &ViewerVolumes, ts: &Timestamps) {
+        let bg = ctx.bind_buffers("volume integration", &self.layout, &[&volumes.froxels, &volumes.integrated]);
+        let mut pass = compute_pass(enc, "volume_integration", ts.writes(Stage::VolumeIntegration));
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, scene, &[]);
+        pass.set_bind_group(1, &bg, &[]);
+        let [x, y, z] = Self::workgroups(volumes);
+        pass.dispatch_workgroups(x, y, z);
+    }
+}
