@@ -14,7 +14,7 @@ run: deps build
 	./target/release/fogcast render --scene $(SCENE) --viewers 4 --width 640 --height 360 --out out/$(SCENE)
 
 test: deps
-	$(CARGO) test --release -- --test-threads=1
+	$(CARGO) test -- --test-threads=1
 
 lint:
 	$(CARGO) fmt --check
