@@ -4,11 +4,11 @@ use super::{invalid, SceneError};
 use glam::{Mat4, Vec3};
 use serde::{Deserialize, Serialize};
 
-/// A polyline that viewers travel along (back and forth), optionally with look-at points.
+/// A closed loop of points that viewers walk around, optionally with look-at points.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraPath {
-    /// Points of the path, metres (at least one).
+    /// Corners of the loop, metres (at least one; the last joins the first).
     pub path: Vec<[f32; 3]>,
     /// Points to look at, one per path point; empty: look along the path.
     #[serde(default)]
@@ -134,44 +134,45 @@ impl CameraPath {
         }
     }
 
-    /// Total length of the polyline, metres.
-    fn length(&self) -> f32 {
-        self.path.windows(2).map(|w| Vec3::from(w[0]).distance(Vec3::from(w[1]))).sum()
+    /// Segments of the closed loop (last point back to the first).
+    fn segments(&self) -> impl Iterator<Item = (Vec3, Vec3, usize)> + '_ {
+        let n = self.path.len();
+        (0..n).map(move |i| (Vec3::from(self.path[i]), Vec3::from(self.path[(i + 1) % n]), i))
     }
 
-    /// Point, look target and direction of travel at arc length `s` (0..=length).
+    /// Length of the closed loop, metres.
+    fn length(&self) -> f32 {
+        self.segments().map(|(a, b, _)| a.distance(b)).sum()
+    }
+
+    /// Point, look target and direction of travel at arc length `s` along the loop.
     fn sample(&self, s: f32) -> (Vec3, Option<Vec3>, Vec3) {
+        let n = self.path.len();
         let mut rest = s;
-        for (i, w) in self.path.windows(2).enumerate() {
-            let (a, b) = (Vec3::from(w[0]), Vec3::from(w[1]));
+        for (a, b, i) in self.segments() {
             let len = a.distance(b);
-            if rest <= len || i + 2 == self.path.len() {
+            if rest <= len || i + 1 == n {
                 let t = if len > 0.0 { (rest / len).clamp(0.0, 1.0) } else { 0.0 };
-                let look = (!self.look_at.is_empty()).then(|| Vec3::from(self.look_at[i]).lerp(Vec3::from(self.look_at[i + 1]), t));
+                let look = (!self.look_at.is_empty()).then(|| Vec3::from(self.look_at[i]).lerp(Vec3::from(self.look_at[(i + 1) % n]), t));
                 return (a.lerp(b, t), look, (b - a).normalize_or(Vec3::NEG_Z));
             }
             rest -= len;
         }
-        let p = Vec3::from(self.path[0]);
-        (p, self.look_at.first().map(|l| Vec3::from(*l)), Vec3::NEG_Z)
+        unreachable!("a validated path has at least one point")
     }
 
-    /// `n` viewers spread evenly along the path at time `time_s`, walking back and forth,
-    /// as players spread over a level would be.
+    /// `n` viewers spread evenly along the closed path at time `time_s`, each walking
+    /// it and looking where it goes (pitched by `pitch_deg`), as players spread over a
+    /// level would be.
     pub fn viewers(&self, n: usize, time_s: f32) -> Vec<Camera> {
         let len = self.length();
         let fov_y = self.fov_deg.to_radians();
         (0..n)
             .map(|i| {
                 let (pos, look, dir) = if len <= 0.0 {
-                    let p = Vec3::from(self.path[0]);
-                    (p, self.look_at.first().map(|l| Vec3::from(*l)), Vec3::NEG_Z)
+                    (Vec3::from(self.path[0]), self.look_at.first().map(|l| Vec3::from(*l)), Vec3::NEG_Z)
                 } else {
-                    // Ping-pong: a loop of length 2·len, folded back onto the path.
-                    let u = ((i as f32 + 0.5) / n as f32 * 2.0 * len + 0.5 * len + time_s * self.speed_mps).rem_euclid(2.0 * len);
-                    let (s, backwards) = if u <= len { (u, false) } else { (2.0 * len - u, true) };
-                    let (p, l, d) = self.sample(s);
-                    (p, l, if backwards { -d } else { d })
+                    self.sample(((i as f32 + 0.5) / n as f32 * len + time_s * self.speed_mps).rem_euclid(len))
                 };
                 let pitched = {
                     let flat = Vec3::new(dir.x, 0.0, dir.z).normalize_or(Vec3::NEG_Z);

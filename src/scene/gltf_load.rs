@@ -100,7 +100,7 @@ pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
             noise: None,
         }],
         camera: CameraPath {
-            path: vec![along(0.2), along(0.5), along(0.8)],
+            path: vec![along(0.25), along(0.75)],
             look_at: vec![],
             fov_deg: 70.0,
             speed_mps: 1.0,
