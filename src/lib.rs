@@ -6,6 +6,7 @@
 //! - [`gpu`]: device selection and buffer helpers.
 //! - [`render`]: the froxel pipeline (`reference` and `shared` modes).
 //! - [`metrics`]: image error (FLIP, PSNR, RMSE).
+//! - [`truth`]: the CPU ground-truth renderer every error is measured against.
 
 #![deny(missing_docs)]
 #![warn(unreachable_pub)]
@@ -16,3 +17,4 @@ pub mod metrics;
 pub mod output;
 pub mod render;
 pub mod scene;
+pub mod truth;

@@ -4,12 +4,17 @@ use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand};
 use fogcast::gpu::GpuContext;
 use fogcast::render::{Mode, Renderer, Settings};
-use fogcast::scene::Scene;
+use fogcast::scene::{Bvh, Scene};
+use fogcast::truth::{render_truth, TruthSettings};
 use std::path::PathBuf;
 use std::sync::Arc;
 
 #[derive(Parser)]
-#[command(name = "fogcast", version, about = "Participating media for many viewers of one scene, streamed to browsers")]
+#[command(
+    name = "fogcast",
+    version,
+    about = "Participating media for many viewers of one scene, streamed to browsers"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -24,9 +29,12 @@ enum Command {
 /// Paper 000's parameters (defaults: the paper's, with trilinear lookup).
 #[derive(Args, Clone)]
 struct SettingsArgs {
-    /// Rendering mode.
+    /// Rendering mode: the paper's baseline, the paper's method, or the CPU ground truth.
     #[arg(long, value_enum, default_value = "shared")]
-    mode: Mode,
+    mode: ModeArg,
+    /// Ray-march segments per pixel of mode `truth`.
+    #[arg(long, default_value_t = TruthSettings::default().steps)]
+    truth_steps: u32,
     /// Shared grid voxel size in metres (default: the scene's).
     #[arg(long)]
     voxel_size: Option<f32>,
@@ -53,6 +61,13 @@ struct SettingsArgs {
     temporal: bool,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ModeArg {
+    Reference,
+    Shared,
+    Truth,
+}
+
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum Lookup {
     Nearest,
@@ -62,7 +77,11 @@ enum Lookup {
 impl SettingsArgs {
     fn settings(&self, scene: &Scene) -> Settings {
         Settings {
-            mode: self.mode,
+            mode: if self.mode == ModeArg::Reference {
+                Mode::Reference
+            } else {
+                Mode::Shared
+            },
             voxel_size_m: self.voxel_size.unwrap_or(scene.render.voxel_size_m),
             froxel_px: self.froxel_px,
             slices: self.slices,
@@ -104,7 +123,10 @@ struct RenderArgs {
 
 fn main() {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "fogcast=info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "fogcast=info".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
@@ -118,16 +140,26 @@ fn main() {
 }
 
 fn render(a: RenderArgs) -> anyhow::Result<()> {
-    anyhow::ensure!((1..=64).contains(&a.viewers), "--viewers {}: must be 1..=64", a.viewers);
+    anyhow::ensure!(
+        (1..=64).contains(&a.viewers),
+        "--viewers {}: must be 1..=64",
+        a.viewers
+    );
     anyhow::ensure!(a.frames >= 1, "--frames must be at least 1");
     let scene = Arc::new(Scene::load(&a.scene)?);
     if scene.dropped_lights > 0 {
-        tracing::warn!(dropped = scene.dropped_lights, "more than 8 lights: kept the 8 strongest at the scene centre");
+        tracing::warn!(
+            dropped = scene.dropped_lights,
+            "more than 8 lights: kept the 8 strongest at the scene centre"
+        );
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    if a.settings.mode == ModeArg::Truth {
+        return render_truth_frames(&a, &scene);
     }
     let settings = a.settings.settings(&scene);
     let ctx = Arc::new(GpuContext::new()?);
     let mut renderer = Renderer::new(ctx, scene.clone(), settings)?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let dt = 1.0 / 30.0;
     let mut last = None;
     for f in 0..a.frames {
@@ -149,9 +181,76 @@ fn render(a: RenderArgs) -> anyhow::Result<()> {
     }
     let frame = last.expect("at least one frame");
     for (i, img) in frame.images.iter().enumerate() {
-        fogcast::output::write_png(&a.out.join(format!("viewer_{i:02}.png")), img, frame.width, frame.height)?;
+        fogcast::output::write_png(
+            &a.out.join(format!("viewer_{i:02}.png")),
+            img,
+            frame.width,
+            frame.height,
+        )?;
     }
     fogcast::output::write_json(&a.out.join("stats.json"), &frame.stats)?;
-    println!("wrote {} images and stats.json to {}", frame.images.len(), a.out.display());
+    println!(
+        "wrote {} images and stats.json to {}",
+        frame.images.len(),
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// Prints a progress line to stderr every 2 % (truth renders take minutes).
+fn progress_printer(label: &str) -> impl Fn(usize, usize) + Sync + '_ {
+    let last = std::sync::atomic::AtomicUsize::new(usize::MAX);
+    move |done, total| {
+        let pct = done * 50 / total.max(1);
+        if last.swap(pct, std::sync::atomic::Ordering::Relaxed) != pct {
+            eprint!("\r{label} [{:<50}] {:3}%", "#".repeat(pct), pct * 2);
+            if done == total {
+                eprintln!();
+            }
+        }
+    }
+}
+
+fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let bvh = Bvh::build(&scene.mesh)?;
+    let cameras = scene.camera.viewers(a.viewers, a.time);
+    let settings = TruthSettings {
+        steps: a.settings.truth_steps,
+        ..TruthSettings::default()
+    };
+    anyhow::ensure!(
+        (1..=65536).contains(&settings.steps),
+        "--truth-steps {}: must be 1..=65536",
+        settings.steps
+    );
+    let (images, counts) = render_truth(
+        scene,
+        &bvh,
+        &cameras,
+        a.width,
+        a.height,
+        a.time,
+        settings,
+        &progress_printer("truth"),
+    );
+    for (i, img) in images.iter().enumerate() {
+        fogcast::output::write_png(
+            &a.out.join(format!("viewer_{i:02}.png")),
+            img,
+            a.width,
+            a.height,
+        )?;
+    }
+    let stats = serde_json::json!({
+        "scene": scene.name, "mode": "truth", "viewers": a.viewers, "width": a.width, "height": a.height,
+        "truth": settings, "rays": counts, "frame_ms": started.elapsed().as_secs_f64() * 1e3,
+    });
+    fogcast::output::write_json(&a.out.join("stats.json"), &stats)?;
+    println!(
+        "wrote {} images and stats.json to {}",
+        images.len(),
+        a.out.display()
+    );
     Ok(())
 }

@@ -78,14 +78,23 @@ impl Bvh {
             return Ok(Bvh {
                 tree: obvhs::bvh2::Bvh2::default(),
                 triangles,
-                gpu_nodes: vec![GpuBvhNode { min: [1.0; 3], max: [-1.0; 3], prim_count: 0, first_index: 0 }],
+                gpu_nodes: vec![GpuBvhNode {
+                    min: [1.0; 3],
+                    max: [-1.0; 3],
+                    prim_count: 0,
+                    first_index: 0,
+                }],
                 gpu_triangles: vec![GpuTriangle::default()],
                 depth: 0,
             });
         }
         let tris: Vec<Triangle> = triangles
             .iter()
-            .map(|[a, b, c]| Triangle { v0: Vec3A::from(*a), v1: Vec3A::from(*b), v2: Vec3A::from(*c) })
+            .map(|[a, b, c]| Triangle {
+                v0: Vec3A::from(*a),
+                v1: Vec3A::from(*b),
+                v2: Vec3A::from(*c),
+            })
             .collect();
         let mut build_time = std::time::Duration::ZERO;
         let tree = build_bvh2_from_tris(&tris, BvhBuildParams::medium_build(), &mut build_time);
@@ -105,7 +114,11 @@ impl Bvh {
             .iter()
             .map(|&i| {
                 let [a, b, c] = triangles[i as usize];
-                GpuTriangle { v0: a.extend(0.0).to_array(), e1: (b - a).extend(0.0).to_array(), e2: (c - a).extend(0.0).to_array() }
+                GpuTriangle {
+                    v0: a.extend(0.0).to_array(),
+                    e1: (b - a).extend(0.0).to_array(),
+                    e2: (c - a).extend(0.0).to_array(),
+                }
             })
             .collect();
         let depth = tree_depth(&gpu_nodes);
@@ -113,8 +126,19 @@ impl Bvh {
             depth <= MAX_BVH_DEPTH,
             "BVH depth {depth} exceeds the GPU traversal stack ({MAX_BVH_DEPTH}); the mesh is pathological"
         );
-        tracing::debug!(nodes = gpu_nodes.len(), depth, ms = build_time.as_secs_f64() * 1e3, "BVH built");
-        Ok(Bvh { tree, triangles, gpu_nodes, gpu_triangles, depth })
+        tracing::debug!(
+            nodes = gpu_nodes.len(),
+            depth,
+            ms = build_time.as_secs_f64() * 1e3,
+            "BVH built"
+        );
+        Ok(Bvh {
+            tree,
+            triangles,
+            gpu_nodes,
+            gpu_triangles,
+            depth,
+        })
     }
 
     /// Number of triangles in the scene.
@@ -127,7 +151,12 @@ impl Bvh {
         if self.triangles.is_empty() {
             return false;
         }
-        let r = obvhs::ray::Ray::new(Vec3A::from(ray.origin), Vec3A::from(ray.dir), ray.t_min, ray.t_max);
+        let r = obvhs::ray::Ray::new(
+            Vec3A::from(ray.origin),
+            Vec3A::from(ray.dir),
+            ray.t_min,
+            ray.t_max,
+        );
         let mut hit = false;
         self.tree.ray_traverse_anyhit(r, |_, prim| {
             if !hit {
@@ -138,9 +167,41 @@ impl Bvh {
         hit
     }
 
+    /// Closest hit with `obvhs`' traversal: (distance, index of the triangle in the mesh).
+    pub fn closest_hit(&self, ray: &Ray) -> Option<(f32, usize)> {
+        if self.triangles.is_empty() {
+            return None;
+        }
+        let r = obvhs::ray::Ray::new(
+            Vec3A::from(ray.origin),
+            Vec3A::from(ray.dir),
+            ray.t_min,
+            ray.t_max,
+        );
+        let mut hit = obvhs::ray::RayHit::none();
+        let found = self.tree.ray_traverse(r, &mut hit, |r, prim| {
+            let id = self.tree.primitive_indices[prim] as usize;
+            let seg = Ray {
+                origin: ray.origin,
+                dir: ray.dir,
+                t_min: ray.t_min,
+                t_max: r.tmax,
+            };
+            intersect_triangle(&seg, &self.triangles[id]).unwrap_or(f32::INFINITY)
+        });
+        found.then(|| {
+            (
+                hit.t,
+                self.tree.primitive_indices[hit.primitive_id as usize] as usize,
+            )
+        })
+    }
+
     /// Any-hit by testing every triangle (the brute-force yardstick for tests).
     pub fn occluded_brute_force(&self, ray: &Ray) -> bool {
-        self.triangles.iter().any(|t| intersect_triangle(ray, t).is_some())
+        self.triangles
+            .iter()
+            .any(|t| intersect_triangle(ray, t).is_some())
     }
 
     /// The triangles in input order.

@@ -10,8 +10,9 @@ use glam::Vec3;
 pub struct MediumSample {
     /// σs per channel, m⁻¹.
     pub scattering: Vec3,
-    /// σt = σs + σa per channel, m⁻¹.
-    pub extinction: Vec3,
+    /// Grey extinction σt = mean(σs) + σa, m⁻¹ (one transmittance for all channels,
+    /// as the froxel volume stores it).
+    pub extinction: f32,
     /// Emitted radiance per metre.
     pub emission: Vec3,
     /// σs-weighted Henyey-Greenstein g.
@@ -30,12 +31,19 @@ pub(crate) fn bounded_extent(m: &MediumDesc) -> Option<(Vec3, Vec3)> {
     }
 }
 
-pub(crate) fn to_render_space(m: &MediumDesc, to_render: &impl Fn([f32; 3]) -> Vec3, scene_bounds: (Vec3, Vec3)) -> Medium {
+pub(crate) fn to_render_space(
+    m: &MediumDesc,
+    to_render: &impl Fn([f32; 3]) -> Vec3,
+    scene_bounds: (Vec3, Vec3),
+) -> Medium {
     let (min, max) = match bounded_extent(m) {
         Some((a, b)) => (to_render(a.to_array()), to_render(b.to_array())),
         None => scene_bounds,
     };
-    let base_y = m.base_y_m.map(|y| to_render([0.0, y, 0.0]).y).unwrap_or(0.0);
+    let base_y = m
+        .base_y_m
+        .map(|y| to_render([0.0, y, 0.0]).y)
+        .unwrap_or(0.0);
     Medium {
         kind: m.kind,
         scattering: Vec3::from(m.scattering),
@@ -46,13 +54,20 @@ pub(crate) fn to_render_space(m: &MediumDesc, to_render: &impl Fn([f32; 3]) -> V
         max,
         radius_or_falloff: m.radius.or(m.falloff_m).unwrap_or(1.0),
         base_y,
-        noise: m.noise.unwrap_or(Noise { frequency: 0.0, octaves: 1, amplitude: 0.0, wind: [0.0; 3] }),
+        noise: m.noise.unwrap_or(Noise {
+            frequency: 0.0,
+            octaves: 1,
+            amplitude: 0.0,
+            wind: [0.0; 3],
+        }),
     }
 }
 
 /// Integer hash of a lattice point (a 32-bit avalanche), mirrored in WGSL.
 fn hash3(x: i32, y: i32, z: i32) -> u32 {
-    let mut h = (x as u32).wrapping_mul(0x8da6_b343) ^ (y as u32).wrapping_mul(0xd816_3841) ^ (z as u32).wrapping_mul(0xcb1a_b31f);
+    let mut h = (x as u32).wrapping_mul(0x8da6_b343)
+        ^ (y as u32).wrapping_mul(0xd816_3841)
+        ^ (z as u32).wrapping_mul(0xcb1a_b31f);
     h ^= h >> 16;
     h = h.wrapping_mul(0x7feb_352d);
     h ^= h >> 15;
@@ -71,7 +86,9 @@ fn value_noise(p: Vec3) -> f32 {
     let f = p - i;
     let u = f * f * (Vec3::splat(3.0) - 2.0 * f);
     let (x, y, z) = (i.x as i32, i.y as i32, i.z as i32);
-    let c = |dx: i32, dy: i32, dz: i32| lattice(x.wrapping_add(dx), y.wrapping_add(dy), z.wrapping_add(dz));
+    let c = |dx: i32, dy: i32, dz: i32| {
+        lattice(x.wrapping_add(dx), y.wrapping_add(dy), z.wrapping_add(dz))
+    };
     let x00 = c(0, 0, 0) + (c(1, 0, 0) - c(0, 0, 0)) * u.x;
     let x10 = c(0, 1, 0) + (c(1, 1, 0) - c(0, 1, 0)) * u.x;
     let x01 = c(0, 0, 1) + (c(1, 0, 1) - c(0, 0, 1)) * u.x;
@@ -130,7 +147,7 @@ pub fn sample_media(media: &[Medium], p: Vec3, time_s: f32) -> MediumSample {
         }
         let ss = m.scattering * d;
         s.scattering += ss;
-        s.extinction += ss + Vec3::splat(m.absorption * d);
+        s.extinction += (ss.x + ss.y + ss.z) / 3.0 + m.absorption * d;
         s.emission += m.emission * d;
         let w = ss.x + ss.y + ss.z;
         s.g += m.g * w;

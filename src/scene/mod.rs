@@ -3,15 +3,15 @@
 //! Scenes are TOML files (see `scenes/*.toml` and `docs/scene-format.md`). Everything a
 //! user writes is validated on load; errors name the field and the offending value.
 
-mod bvh;
 mod builtin;
+mod bvh;
 mod camera;
 mod gltf_load;
 mod media;
 mod mesh;
 
-pub use bvh::{intersect_triangle, Bvh, GpuBvhNode, GpuTriangle, Ray, MAX_BVH_DEPTH};
 pub use builtin::{builtin_names, builtin_scene};
+pub use bvh::{intersect_triangle, Bvh, GpuBvhNode, GpuTriangle, Ray, MAX_BVH_DEPTH};
 pub use camera::{Camera, CameraPath};
 pub use media::{density_at, hg_phase, sample_media, MediumSample};
 pub use mesh::TriangleMesh;
@@ -65,7 +65,11 @@ pub enum SceneError {
     Unknown(String),
 }
 
-pub(crate) fn invalid(field: impl Into<String>, value: impl std::fmt::Debug, reason: &str) -> SceneError {
+pub(crate) fn invalid(
+    field: impl Into<String>,
+    value: impl std::fmt::Debug,
+    reason: &str,
+) -> SceneError {
     SceneError::Invalid {
         field: field.into(),
         value: format!("{value:?}"),
@@ -403,7 +407,11 @@ impl Scene {
         if !path.exists() {
             return Err(SceneError::Unknown(name_or_path.to_string()));
         }
-        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
         if ext == "glb" || ext == "gltf" {
             return Scene::from_desc(gltf_load::default_desc_for(path)?, Path::new("."));
         }
@@ -481,7 +489,9 @@ impl Scene {
     pub fn media_bounds(&self) -> Option<(Vec3, Vec3)> {
         let mut it = self.media.iter();
         let first = it.next()?;
-        Some(it.fold((first.min, first.max), |(a, b), m| (a.min(m.min), b.max(m.max))))
+        Some(it.fold((first.min, first.max), |(a, b), m| {
+            (a.min(m.min), b.max(m.max))
+        }))
     }
 }
 
@@ -502,9 +512,27 @@ fn check_range(field: &str, v: f32, lo: f32, hi: f32, what: &str) -> Result<(), 
 }
 
 fn validate_render(r: &RenderDefaults) -> Result<(), SceneError> {
-    check_range("render.near_m", r.near_m, 1e-4, 1e3, "must be between 0.0001 and 1000 m")?;
-    check_range("render.far_m", r.far_m, r.near_m * 1.01, 1e5, "must be greater than near_m and at most 100000 m")?;
-    check_range("render.voxel_size_m", r.voxel_size_m, 0.01, 100.0, "must be between 0.01 and 100 m")?;
+    check_range(
+        "render.near_m",
+        r.near_m,
+        1e-4,
+        1e3,
+        "must be between 0.0001 and 1000 m",
+    )?;
+    check_range(
+        "render.far_m",
+        r.far_m,
+        r.near_m * 1.01,
+        1e5,
+        "must be greater than near_m and at most 100000 m",
+    )?;
+    check_range(
+        "render.voxel_size_m",
+        r.voxel_size_m,
+        0.01,
+        100.0,
+        "must be between 0.01 and 100 m",
+    )?;
     check_finite("render.sky", &r.sky)?;
     check_finite("render.ambient", &r.ambient)?;
     for (f, v) in [("render.sky", r.sky), ("render.ambient", r.ambient)] {
@@ -530,11 +558,21 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
             if color.iter().any(|c| *c < 0.0) {
                 return Err(invalid(f("color"), color, "must not be negative"));
             }
-            check_range(&f("intensity"), intensity, 0.0, 1e9, "must be between 0 and 1e9")?;
+            check_range(
+                &f("intensity"),
+                intensity,
+                0.0,
+                1e9,
+                "must be between 0 and 1e9",
+            )?;
             Ok(Vec3::from(color) * intensity)
         };
         let light = match *l {
-            LightDesc::Directional { direction, color, intensity } => (
+            LightDesc::Directional {
+                direction,
+                color,
+                intensity,
+            } => (
                 Light {
                     kind: 0,
                     position: Vec3::ZERO,
@@ -545,7 +583,11 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                 },
                 glam::DVec3::ZERO,
             ),
-            LightDesc::Point { position, color, intensity } => {
+            LightDesc::Point {
+                position,
+                color,
+                intensity,
+            } => {
                 check_finite(&f("position"), &position)?;
                 (
                     Light {
@@ -559,10 +601,29 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                     Vec3::from(position).as_dvec3(),
                 )
             }
-            LightDesc::Spot { position, direction, color, intensity, inner_deg, outer_deg } => {
+            LightDesc::Spot {
+                position,
+                direction,
+                color,
+                intensity,
+                inner_deg,
+                outer_deg,
+            } => {
                 check_finite(&f("position"), &position)?;
-                check_range(&f("outer_deg"), outer_deg, 0.1, 179.0, "must be between 0.1 and 179 degrees")?;
-                check_range(&f("inner_deg"), inner_deg, 0.0, outer_deg, "must be between 0 and outer_deg")?;
+                check_range(
+                    &f("outer_deg"),
+                    outer_deg,
+                    0.1,
+                    179.0,
+                    "must be between 0.1 and 179 degrees",
+                )?;
+                check_range(
+                    &f("inner_deg"),
+                    inner_deg,
+                    0.0,
+                    outer_deg - 0.01,
+                    "must be at least 0 and smaller than outer_deg",
+                )?;
                 (
                     Light {
                         kind: 2,
@@ -584,7 +645,11 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
 /// Keeps the [`MAX_LIGHTS`] lights with the most radiance at the centre of the scene
 /// (paper 000 §3.1.1 recommends keeping the strongest 8); returns the kept lights in
 /// their original order and how many were dropped.
-fn rank_lights(lights: Vec<(Light, glam::DVec3)>, origin: glam::DVec3, bounds: (Vec3, Vec3)) -> (Vec<Light>, usize) {
+fn rank_lights(
+    lights: Vec<(Light, glam::DVec3)>,
+    origin: glam::DVec3,
+    bounds: (Vec3, Vec3),
+) -> (Vec<Light>, usize) {
     let placed: Vec<Light> = lights
         .into_iter()
         .map(|(mut l, world_pos)| {
@@ -619,10 +684,28 @@ fn validate_media(media: &[MediumDesc]) -> Result<(), SceneError> {
         let f = |name: &str| format!("medium[{i}].{name}");
         check_finite(&f("scattering"), &m.scattering)?;
         for c in m.scattering {
-            check_range(&f("scattering"), c, 0.0, 1e6, "each channel must be between 0 and 1e6 m⁻¹")?;
+            check_range(
+                &f("scattering"),
+                c,
+                0.0,
+                1e6,
+                "each channel must be between 0 and 1e6 m⁻¹",
+            )?;
         }
-        check_range(&f("absorption"), m.absorption, 0.0, 1e6, "must be between 0 and 1e6 m⁻¹")?;
-        check_range(&f("g"), m.g, -0.9999, 0.9999, "Henyey-Greenstein g must be strictly between -1 and 1")?;
+        check_range(
+            &f("absorption"),
+            m.absorption,
+            0.0,
+            1e6,
+            "must be between 0 and 1e6 m⁻¹",
+        )?;
+        check_range(
+            &f("g"),
+            m.g,
+            -0.9999,
+            0.9999,
+            "Henyey-Greenstein g must be strictly between -1 and 1",
+        )?;
         check_finite(&f("emission"), &m.emission)?;
         if m.emission.iter().any(|c| *c < 0.0) {
             return Err(invalid(f("emission"), m.emission, "must not be negative"));
@@ -630,33 +713,85 @@ fn validate_media(media: &[MediumDesc]) -> Result<(), SceneError> {
         match m.kind {
             MediumKind::Constant => {}
             MediumKind::Height => {
-                let base = m.base_y_m.ok_or_else(|| invalid(f("base_y_m"), "missing", "height fog needs base_y_m"))?;
+                let base = m.base_y_m.ok_or_else(|| {
+                    invalid(f("base_y_m"), "missing", "height fog needs base_y_m")
+                })?;
                 check_finite(&f("base_y_m"), &[base])?;
-                let falloff = m.falloff_m.ok_or_else(|| invalid(f("falloff_m"), "missing", "height fog needs falloff_m"))?;
-                check_range(&f("falloff_m"), falloff, 1e-3, 1e5, "must be between 0.001 and 100000 m")?;
+                let falloff = m.falloff_m.ok_or_else(|| {
+                    invalid(f("falloff_m"), "missing", "height fog needs falloff_m")
+                })?;
+                check_range(
+                    &f("falloff_m"),
+                    falloff,
+                    1e-3,
+                    1e5,
+                    "must be between 0.001 and 100000 m",
+                )?;
             }
             MediumKind::Box => {
-                let lo = m.min.ok_or_else(|| invalid(f("min"), "missing", "a box medium needs min and max"))?;
-                let hi = m.max.ok_or_else(|| invalid(f("max"), "missing", "a box medium needs min and max"))?;
+                let lo = m.min.ok_or_else(|| {
+                    invalid(f("min"), "missing", "a box medium needs min and max")
+                })?;
+                let hi = m.max.ok_or_else(|| {
+                    invalid(f("max"), "missing", "a box medium needs min and max")
+                })?;
                 check_finite(&f("min"), &lo)?;
                 check_finite(&f("max"), &hi)?;
                 if (0..3).any(|k| hi[k] <= lo[k]) {
-                    return Err(invalid(f("max"), hi, "must be greater than min on every axis"));
+                    return Err(invalid(
+                        f("max"),
+                        hi,
+                        "must be greater than min on every axis",
+                    ));
                 }
             }
             MediumKind::Sphere => {
-                let c = m.center.ok_or_else(|| invalid(f("center"), "missing", "a sphere medium needs center and radius"))?;
+                let c = m.center.ok_or_else(|| {
+                    invalid(
+                        f("center"),
+                        "missing",
+                        "a sphere medium needs center and radius",
+                    )
+                })?;
                 check_finite(&f("center"), &c)?;
-                let r = m.radius.ok_or_else(|| invalid(f("radius"), "missing", "a sphere medium needs center and radius"))?;
-                check_range(&f("radius"), r, 1e-3, 1e5, "must be between 0.001 and 100000 m")?;
+                let r = m.radius.ok_or_else(|| {
+                    invalid(
+                        f("radius"),
+                        "missing",
+                        "a sphere medium needs center and radius",
+                    )
+                })?;
+                check_range(
+                    &f("radius"),
+                    r,
+                    1e-3,
+                    1e5,
+                    "must be between 0.001 and 100000 m",
+                )?;
             }
         }
         if let Some(n) = m.noise {
-            check_range(&f("noise.frequency"), n.frequency, 0.0, 1e3, "must be between 0 and 1000 per metre")?;
+            check_range(
+                &f("noise.frequency"),
+                n.frequency,
+                0.0,
+                1e3,
+                "must be between 0 and 1000 per metre",
+            )?;
             if !(1..=6).contains(&n.octaves) {
-                return Err(invalid(f("noise.octaves"), n.octaves, "must be between 1 and 6"));
+                return Err(invalid(
+                    f("noise.octaves"),
+                    n.octaves,
+                    "must be between 1 and 6",
+                ));
             }
-            check_range(&f("noise.amplitude"), n.amplitude, 0.0, 1.0, "must be between 0 and 1")?;
+            check_range(
+                &f("noise.amplitude"),
+                n.amplitude,
+                0.0,
+                1.0,
+                "must be between 0 and 1",
+            )?;
             check_finite(&f("noise.wind"), &n.wind)?;
         }
     }
