@@ -6,15 +6,19 @@
 //! - [`gpu`]: device selection and buffer helpers.
 //! - [`render`]: the froxel pipeline (`reference` and `shared` modes).
 //! - [`metrics`]: image error (FLIP, PSNR, RMSE).
+//! - [`server`]: `fogcast serve`, streaming every viewer's frames to browsers over WebSocket.
 //! - [`truth`]: the CPU ground-truth renderer every error is measured against.
 
 #![deny(missing_docs)]
 #![warn(unreachable_pub)]
 #![forbid(unsafe_code)]
 
+pub mod eval;
 pub mod gpu;
 pub mod metrics;
 pub mod output;
 pub mod render;
+pub mod report;
 pub mod scene;
+pub mod server;
 pub mod truth;

@@ -1,4 +1,4 @@
-//! fogcast command line: `render` (offline frames + stats).
+//! fogcast command line: `render` (offline frames + stats), `serve` (stream to browsers).
 
 use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand};
@@ -24,6 +24,41 @@ struct Cli {
 enum Command {
     /// Render N viewers placed along the scene's camera path; write one PNG per viewer and stats.json.
     Render(RenderArgs),
+    /// Stream every viewer's frames to browsers over WebSocket (mono, stereo and split sessions).
+    Serve(fogcast::server::ServeArgs),
+    /// Measure error and cost: truth, reference and a sweep of shared settings on the same frames.
+    Eval(EvalArgs),
+}
+
+#[derive(Args)]
+struct EvalArgs {
+    /// Built-in scene, scene .toml, or .glb/.gltf.
+    #[arg(long, default_value = "colonnade")]
+    scene: String,
+    /// Number of viewers.
+    #[arg(long, default_value_t = 2)]
+    viewers: usize,
+    /// Viewer width in pixels.
+    #[arg(long, default_value_t = 320)]
+    width: u32,
+    /// Viewer height in pixels.
+    #[arg(long, default_value_t = 180)]
+    height: u32,
+    /// Voxel sizes to sweep, metres.
+    #[arg(long, value_delimiter = ',', default_value = "4,2,1,0.5,0.25,0.125")]
+    voxel_sizes: Vec<f32>,
+    /// Walk-in frames per variant (the last one is evaluated).
+    #[arg(long, default_value_t = 3)]
+    frames: u32,
+    /// Ray-march steps per pixel of the truth renderer.
+    #[arg(long, default_value_t = TruthSettings::default().steps)]
+    truth_steps: u32,
+    /// Scene time of the evaluated frame, seconds.
+    #[arg(long, default_value_t = 2.0)]
+    time: f32,
+    /// Output folder (eval.md, eval.csv, eval.json, plots, sample images).
+    #[arg(long, default_value = "out/eval")]
+    out: PathBuf,
 }
 
 /// Paper 000's parameters (defaults: the paper's, with trilinear lookup).
@@ -132,6 +167,8 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(a) => render(a),
+        Command::Serve(a) => fogcast::server::serve(&a),
+        Command::Eval(a) => eval(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
@@ -251,6 +288,42 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
         "wrote {} images and stats.json to {}",
         images.len(),
         a.out.display()
+    );
+    Ok(())
+}
+
+fn eval(a: EvalArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        (1..=16).contains(&a.viewers),
+        "--viewers {}: must be 1..=16",
+        a.viewers
+    );
+    anyhow::ensure!(
+        !a.voxel_sizes.is_empty(),
+        "--voxel-sizes needs at least one size"
+    );
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let started = std::time::Instant::now();
+    let cfg = fogcast::eval::EvalConfig {
+        scene: a.scene,
+        viewers: a.viewers,
+        width: a.width,
+        height: a.height,
+        voxel_sizes_m: a.voxel_sizes,
+        frames: a.frames,
+        truth_steps: a.truth_steps,
+        time_s: a.time,
+        out: a.out.clone(),
+        command,
+    };
+    let rows = fogcast::eval::run(cfg, &|step| {
+        eprintln!("eval {:>6.1} s  {step}", started.elapsed().as_secs_f64())
+    })?;
+    println!(
+        "{} variants evaluated in {:.0} s; report in {}",
+        rows.len(),
+        started.elapsed().as_secs_f64(),
+        a.out.join("eval.md").display()
     );
     Ok(())
 }

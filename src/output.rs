@@ -5,7 +5,8 @@ use std::path::Path;
 
 /// Writes an RGBA8 image as PNG.
 pub fn write_png(path: &Path, rgba: &[u8], width: u32, height: u32) -> anyhow::Result<()> {
-    image::save_buffer(path, rgba, width, height, image::ExtendedColorType::Rgba8).with_context(|| format!("writing {}", path.display()))
+    image::save_buffer(path, rgba, width, height, image::ExtendedColorType::Rgba8)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Writes a value as pretty JSON.

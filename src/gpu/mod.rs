@@ -21,11 +21,20 @@ pub struct GpuContext {
 
 impl std::fmt::Debug for GpuContext {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("GpuContext").field("adapter", &self.adapter_info.name).finish()
+        f.debug_struct("GpuContext")
+            .field("adapter", &self.adapter_info.name)
+            .finish()
     }
 }
 
+static ADAPTER_NAME: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+
 impl GpuContext {
+    /// Name and driver of the first adapter this process opened ("none" before).
+    pub fn last_adapter_name() -> String {
+        ADAPTER_NAME.get().cloned().unwrap_or_else(|| "none".into())
+    }
+
     /// Opens the first Vulkan adapter (a GPU if there is one, else lavapipe).
     ///
     /// Vulkan is forced unless `WGPU_BACKEND` says otherwise: wgpu's GL backend on
@@ -59,9 +68,12 @@ impl GpuContext {
         let required_limits = wgpu::Limits {
             max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size,
             max_buffer_size: adapter_limits.max_buffer_size,
-            max_storage_buffers_per_shader_stage: adapter_limits.max_storage_buffers_per_shader_stage.min(16),
+            max_storage_buffers_per_shader_stage: adapter_limits
+                .max_storage_buffers_per_shader_stage
+                .min(16),
             max_texture_array_layers: adapter_limits.max_texture_array_layers,
-            max_compute_workgroups_per_dimension: adapter_limits.max_compute_workgroups_per_dimension,
+            max_compute_workgroups_per_dimension: adapter_limits
+                .max_compute_workgroups_per_dimension,
             ..wgpu::Limits::default()
         };
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
@@ -74,6 +86,7 @@ impl GpuContext {
         }))
         .context("requesting a wgpu device")?;
         tracing::info!(adapter = %info.name, driver = %info.driver_info, "GPU adapter");
+        let _ = ADAPTER_NAME.set(format!("{} ({})", info.name, info.driver_info));
         Ok(GpuContext {
             timestamp_period_ns: queue.get_timestamp_period(),
             device,
@@ -84,19 +97,32 @@ impl GpuContext {
         })
     }
 
-    /// A storage buffer initialised with `data` (never empty: one zero word at least).
-    pub fn storage_init<T: bytemuck::Pod>(&self, label: &str, data: &[T], extra: wgpu::BufferUsages) -> wgpu::Buffer {
+    /// A storage buffer initialised with `data`; when `data` is empty, one zeroed `T`
+    /// (and at least 16 bytes), because wgpu rejects binding a runtime-sized
+    /// `array<T>` smaller than one element (a scene without lights has an empty light list).
+    pub fn storage_init<T: bytemuck::Pod>(
+        &self,
+        label: &str,
+        data: &[T],
+        extra: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
         let bytes: &[u8] = bytemuck::cast_slice(data);
-        let zero = [0u8; 16];
-        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: if bytes.is_empty() { &zero } else { bytes },
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
-        })
+        let zero = vec![0u8; std::mem::size_of::<T>().max(16)];
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: if bytes.is_empty() { &zero } else { bytes },
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
+            })
     }
 
     /// A zeroed storage buffer of `size` bytes (rounded up to 16).
-    pub fn storage(&self, label: &str, size: u64, extra: wgpu::BufferUsages) -> anyhow::Result<wgpu::Buffer> {
+    pub fn storage(
+        &self,
+        label: &str,
+        size: u64,
+        extra: wgpu::BufferUsages,
+    ) -> anyhow::Result<wgpu::Buffer> {
         let size = size.max(16).next_multiple_of(16);
         anyhow::ensure!(
             size <= self.max_storage_binding,
@@ -107,35 +133,48 @@ impl GpuContext {
         Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC | extra,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC
+                | extra,
             mapped_at_creation: false,
         }))
     }
 
     /// Compiles WGSL assembled from `parts` (shared includes first, the stage last).
     pub fn shader(&self, label: &str, parts: &[&str]) -> wgpu::ShaderModule {
-        self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(label),
-            source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
-        })
+        self.device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
+            })
     }
 
     /// A compute pipeline with an explicit layout.
-    pub fn compute_pipeline(&self, label: &str, module: &wgpu::ShaderModule, layouts: &[&wgpu::BindGroupLayout]) -> wgpu::ComputePipeline {
-        let layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(|l| Some(*l)).collect();
-        let layout = self.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some(label),
-            bind_group_layouts: &layouts,
-            immediate_size: 0,
-        });
-        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(label),
-            layout: Some(&layout),
-            module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        })
+    pub fn compute_pipeline(
+        &self,
+        label: &str,
+        module: &wgpu::ShaderModule,
+        layouts: &[&wgpu::BindGroupLayout],
+    ) -> wgpu::ComputePipeline {
+        let layouts: Vec<Option<&wgpu::BindGroupLayout>> =
+            layouts.iter().map(|l| Some(*l)).collect();
+        let layout = self
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &layouts,
+                immediate_size: 0,
+            });
+        self.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: Some(&layout),
+                module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
     }
 
     /// A bind group layout of storage buffers for compute, `true` = read-write.
@@ -145,17 +184,33 @@ impl GpuContext {
             .enumerate()
             .map(|(i, rw)| storage_entry(i as u32, !rw))
             .collect();
-        self.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries: &entries })
+        self.device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries: &entries,
+            })
     }
 
     /// A bind group binding `buffers` in order.
-    pub fn bind_buffers(&self, label: &str, layout: &wgpu::BindGroupLayout, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
+    pub fn bind_buffers(
+        &self,
+        label: &str,
+        layout: &wgpu::BindGroupLayout,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
             .collect();
-        self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &entries,
+        })
     }
 
     /// Copies `buffer` to the host (blocking).
@@ -193,9 +248,16 @@ pub fn map_read(device: &wgpu::Device, staging: &wgpu::Buffer) -> anyhow::Result
     staging.map_async(wgpu::MapMode::Read, .., move |r| {
         let _ = tx.send(r);
     });
-    device.poll(wgpu::PollType::wait_indefinitely()).context("waiting for the GPU")?;
-    rx.recv().context("map callback dropped")?.context("mapping a readback buffer")?;
-    let data = staging.get_mapped_range(..).map_err(|e| anyhow!("{e:?}"))?.to_vec();
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .context("waiting for the GPU")?;
+    rx.recv()
+        .context("map callback dropped")?
+        .context("mapping a readback buffer")?;
+    let data = staging
+        .get_mapped_range(..)
+        .map_err(|e| anyhow!("{e:?}"))?
+        .to_vec();
     staging.unmap();
     Ok(data)
 }

@@ -24,32 +24,83 @@ fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
 
 impl Composite {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ctx.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("composite"),
-            entries: &[storage_entry(0, true), storage_entry(1, false), texture_entry(2), texture_entry(3), texture_entry(4)],
-        });
-        let module = ctx.shader("composite", &[super::COMMON_WGSL, super::BVH_WGSL, include_str!("../../shaders/composite.wgsl")]);
-        Composite { pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]), layout }
+        let layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("composite"),
+                entries: &[
+                    storage_entry(0, true),
+                    storage_entry(1, false),
+                    texture_entry(2),
+                    texture_entry(3),
+                    texture_entry(4),
+                ],
+            });
+        let module = ctx.shader(
+            "composite",
+            &[
+                super::COMMON_WGSL,
+                super::BVH_WGSL,
+                include_str!("../../shaders/composite.wgsl"),
+            ],
+        );
+        Composite {
+            pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),
+            layout,
+        }
     }
 
     pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
-        [volumes.layout.width.div_ceil(8), volumes.layout.height.div_ceil(8), volumes.count as u32]
+        [
+            volumes.layout.width.div_ceil(8),
+            volumes.layout.height.div_ceil(8),
+            volumes.count as u32,
+        ]
     }
 
-    pub(crate) fn add_pass(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, scene: &wgpu::BindGroup, volumes: &ViewerVolumes, ts: &Timestamps) {
+    pub(crate) fn add_pass(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &wgpu::BindGroup,
+        volumes: &ViewerVolumes,
+        ts: &Timestamps,
+    ) {
         let array_view = |t: &wgpu::Texture| {
-            t.create_view(&wgpu::TextureViewDescriptor { dimension: Some(wgpu::TextureViewDimension::D2Array), ..Default::default() })
+            t.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            })
         };
-        let (pos, nrm, alb) = (array_view(&volumes.gbuf_position), array_view(&volumes.gbuf_normal), array_view(&volumes.gbuf_albedo));
+        let (pos, nrm, alb) = (
+            array_view(&volumes.gbuf_position),
+            array_view(&volumes.gbuf_normal),
+            array_view(&volumes.gbuf_albedo),
+        );
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("composite"),
             layout: &self.layout,
             entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: volumes.integrated.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: volumes.output.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&pos) },
-                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&nrm) },
-                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(&alb) },
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: volumes.integrated.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: volumes.output.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&pos),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: wgpu::BindingResource::TextureView(&nrm),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: wgpu::BindingResource::TextureView(&alb),
+                },
             ],
         });
         let mut pass = compute_pass(enc, "composite", ts.writes(Stage::Composite));

@@ -13,13 +13,27 @@ pub(crate) struct FroxelLighting {
 impl FroxelLighting {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let layout = ctx.storage_layout("froxel lighting", &[false, false, true, false]);
-        let module = ctx.shader("froxel_lighting", &[super::COMMON_WGSL, super::BVH_WGSL, include_str!("../../shaders/froxel_lighting.wgsl")]);
-        FroxelLighting { pipeline: ctx.compute_pipeline("froxel_lighting", &module, &[scene_layout, &layout]), layout }
+        let module = ctx.shader(
+            "froxel_lighting",
+            &[
+                super::COMMON_WGSL,
+                super::BVH_WGSL,
+                include_str!("../../shaders/froxel_lighting.wgsl"),
+            ],
+        );
+        FroxelLighting {
+            pipeline: ctx.compute_pipeline("froxel_lighting", &module, &[scene_layout, &layout]),
+            layout,
+        }
     }
 
     pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
         let [x, y] = volumes.layout.froxel_dims;
-        [x.div_ceil(8), y.div_ceil(8), volumes.slices * volumes.count as u32]
+        [
+            x.div_ceil(8),
+            y.div_ceil(8),
+            volumes.slices * volumes.count as u32,
+        ]
     }
 
     /// `grid` is `None` in `reference` mode, where every froxel traces its own rays.
@@ -37,7 +51,12 @@ impl FroxelLighting {
         let bg = ctx.bind_buffers(
             "froxel lighting",
             &self.layout,
-            &[grid_buffer, &volumes.frustum, &volumes.froxels, &volumes.froxel_history],
+            &[
+                grid_buffer,
+                &volumes.frustum,
+                &volumes.froxels,
+                &volumes.froxel_history,
+            ],
         );
         let mut pass = compute_pass(enc, "froxel_lighting", ts.writes(Stage::FroxelLighting));
         pass.set_pipeline(&self.pipeline);

@@ -24,62 +24,84 @@ pub(crate) struct GBuffer {
 
 impl GBuffer {
     pub(crate) fn new(ctx: &GpuContext) -> Self {
-        let layout = ctx.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("gbuffer"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: true,
-                    min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<RasterView>() as u64),
-                },
-                count: None,
-            }],
-        });
+        let layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("gbuffer"),
+                entries: &[wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: true,
+                        min_binding_size: wgpu::BufferSize::new(
+                            std::mem::size_of::<RasterView>() as u64
+                        ),
+                    },
+                    count: None,
+                }],
+            });
         let module = ctx.shader("gbuffer", &[include_str!("../../shaders/gbuffer.wgsl")]);
-        let pl = ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("gbuffer"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let target = |format| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL });
-        let pipeline = ctx.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("gbuffer"),
-            layout: Some(&pl),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: 16,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32],
-                })],
-            },
-            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: wgpu::TextureFormat::Depth32Float,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[
-                    target(wgpu::TextureFormat::Rgba32Float),
-                    target(wgpu::TextureFormat::Rgba16Float),
-                    target(wgpu::TextureFormat::Rgba8Unorm),
-                ],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        GBuffer { pipeline, layout, uniforms: Self::uniform_buffer(ctx, 16), capacity: 16 }
+        let pl = ctx
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("gbuffer"),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+        let target = |format| {
+            Some(wgpu::ColorTargetState {
+                format,
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })
+        };
+        let pipeline = ctx
+            .device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("gbuffer"),
+                layout: Some(&pl),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: 16,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32],
+                    })],
+                },
+                primitive: wgpu::PrimitiveState {
+                    cull_mode: None,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: wgpu::TextureFormat::Depth32Float,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("fs_main"),
+                    compilation_options: Default::default(),
+                    targets: &[
+                        target(wgpu::TextureFormat::Rgba32Float),
+                        target(wgpu::TextureFormat::Rgba16Float),
+                        target(wgpu::TextureFormat::Rgba8Unorm),
+                    ],
+                }),
+                multiview_mask: None,
+                cache: None,
+            });
+        GBuffer {
+            pipeline,
+            layout,
+            uniforms: Self::uniform_buffer(ctx, 16),
+            capacity: 16,
+        }
     }
 
     fn uniform_buffer(ctx: &GpuContext, n: usize) -> wgpu::Buffer {
@@ -116,7 +138,8 @@ impl GBuffer {
                 forward: c.forward.extend(0.0).to_array(),
             };
             let at = i * VIEW_STRIDE as usize;
-            bytes[at..at + std::mem::size_of::<RasterView>()].copy_from_slice(bytemuck::bytes_of(&rv));
+            bytes[at..at + std::mem::size_of::<RasterView>()]
+                .copy_from_slice(bytemuck::bytes_of(&rv));
         }
         ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -147,10 +170,20 @@ impl GBuffer {
                 layer(&volumes.gbuf_albedo, i),
             ];
             let depth = layer(&volumes.gbuf_depth, i);
-            let clear = wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT), store: wgpu::StoreOp::Store };
+            let clear = wgpu::Operations {
+                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                store: wgpu::StoreOp::Store,
+            };
             let attachments: Vec<Option<wgpu::RenderPassColorAttachment>> = views
                 .iter()
-                .map(|v| Some(wgpu::RenderPassColorAttachment { view: v, depth_slice: None, resolve_target: None, ops: clear }))
+                .map(|v| {
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: v,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: clear,
+                    })
+                })
                 .collect();
             let timestamp_writes = ts.render_writes(Stage::GBuffer, i == 0, i + 1 == n);
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -158,7 +191,10 @@ impl GBuffer {
                 color_attachments: &attachments,
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &depth,
-                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Store }),
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Store,
+                    }),
                     stencil_ops: None,
                 }),
                 timestamp_writes,

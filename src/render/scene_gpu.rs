@@ -27,14 +27,30 @@ impl SceneGpu {
     pub(crate) fn new(ctx: &GpuContext, scene: &Scene, bvh: &Bvh) -> anyhow::Result<SceneGpu> {
         let lights: Vec<LightGpu> = scene.lights.iter().map(LightGpu::from).collect();
         let media: Vec<MediumGpu> = scene.media.iter().map(MediumGpu::from).collect();
-        let frame = ctx.storage("frame", std::mem::size_of::<FrameGpu>() as u64, wgpu::BufferUsages::empty())?;
+        let frame = ctx.storage(
+            "frame",
+            std::mem::size_of::<FrameGpu>() as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
         let views_capacity = 16;
-        let views = ctx.storage("views", (views_capacity * std::mem::size_of::<ViewGpu>()) as u64, wgpu::BufferUsages::empty())?;
-        let counters = ctx.storage("counters", (COUNTERS * 4) as u64, wgpu::BufferUsages::empty())?;
+        let views = ctx.storage(
+            "views",
+            (views_capacity * std::mem::size_of::<ViewGpu>()) as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
+        let counters = ctx.storage(
+            "counters",
+            (COUNTERS * 4) as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
         let lights = ctx.storage_init("lights", &lights, wgpu::BufferUsages::empty());
         let media = ctx.storage_init("media", &media, wgpu::BufferUsages::empty());
         let nodes = ctx.storage_init("bvh nodes", &bvh.gpu_nodes, wgpu::BufferUsages::empty());
-        let tris = ctx.storage_init("bvh triangles", &bvh.gpu_triangles, wgpu::BufferUsages::empty());
+        let tris = ctx.storage_init(
+            "bvh triangles",
+            &bvh.gpu_triangles,
+            wgpu::BufferUsages::empty(),
+        );
         let layout = ctx.storage_layout("scene", &[false, false, false, false, false, false, true]);
 
         // Raster vertices: position + packed albedo, 16 bytes.
@@ -53,7 +69,11 @@ impl SceneGpu {
             ("raster_indices", indices.size()),
             ("lights_media", lights.size() + media.size()),
         ];
-        let bind_group = ctx.bind_buffers("scene", &layout, &[&frame, &views, &lights, &media, &nodes, &tris, &counters]);
+        let bind_group = ctx.bind_buffers(
+            "scene",
+            &layout,
+            &[&frame, &views, &lights, &media, &nodes, &tris, &counters],
+        );
         Ok(SceneGpu {
             frame,
             views,
@@ -78,11 +98,23 @@ impl SceneGpu {
             return Ok(());
         }
         self.views_capacity = count.next_power_of_two();
-        self.views = ctx.storage("views", (self.views_capacity * std::mem::size_of::<ViewGpu>()) as u64, wgpu::BufferUsages::empty())?;
+        self.views = ctx.storage(
+            "views",
+            (self.views_capacity * std::mem::size_of::<ViewGpu>()) as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
         self.bind_group = ctx.bind_buffers(
             "scene",
             &self.layout,
-            &[&self.frame, &self.views, &self.lights, &self.media, &self.nodes, &self.tris, &self.counters],
+            &[
+                &self.frame,
+                &self.views,
+                &self.lights,
+                &self.media,
+                &self.nodes,
+                &self.tris,
+                &self.counters,
+            ],
         );
         Ok(())
     }

@@ -13,16 +13,37 @@ pub(crate) struct ShadowFrustum {
 impl ShadowFrustum {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let layout = ctx.storage_layout("shadow frustum", &[true]);
-        let module = ctx.shader("shadow_frustum", &[super::COMMON_WGSL, super::BVH_WGSL, include_str!("../../shaders/shadow_frustum.wgsl")]);
-        ShadowFrustum { pipeline: ctx.compute_pipeline("shadow_frustum", &module, &[scene_layout, &layout]), layout }
+        let module = ctx.shader(
+            "shadow_frustum",
+            &[
+                super::COMMON_WGSL,
+                super::BVH_WGSL,
+                include_str!("../../shaders/shadow_frustum.wgsl"),
+            ],
+        );
+        ShadowFrustum {
+            pipeline: ctx.compute_pipeline("shadow_frustum", &module, &[scene_layout, &layout]),
+            layout,
+        }
     }
 
     pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
         let [x, y] = volumes.layout.frustum_dims;
-        [x.div_ceil(8), y.div_ceil(8), volumes.frustum_slices * volumes.count as u32]
+        [
+            x.div_ceil(8),
+            y.div_ceil(8),
+            volumes.frustum_slices * volumes.count as u32,
+        ]
     }
 
-    pub(crate) fn add_pass(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, scene: &wgpu::BindGroup, volumes: &ViewerVolumes, ts: &Timestamps) {
+    pub(crate) fn add_pass(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &wgpu::BindGroup,
+        volumes: &ViewerVolumes,
+        ts: &Timestamps,
+    ) {
         let bg = ctx.bind_buffers("shadow frustum", &self.layout, &[&volumes.frustum]);
         let mut pass = compute_pass(enc, "shadow_frustum", ts.writes(Stage::ShadowFrustum));
         pass.set_pipeline(&self.pipeline);

@@ -20,7 +20,12 @@ pub struct SharedShadowGrid {
 
 impl SharedShadowGrid {
     /// A grid covering `bounds` with cubic voxels of `voxel_size_m`.
-    pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout, bounds: (Vec3, Vec3), voxel_size_m: f32) -> anyhow::Result<Self> {
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene_layout: &wgpu::BindGroupLayout,
+        bounds: (Vec3, Vec3),
+        voxel_size_m: f32,
+    ) -> anyhow::Result<Self> {
         let extent = (bounds.1 - bounds.0).max(Vec3::splat(voxel_size_m));
         let dims = (extent / voxel_size_m).ceil().as_uvec3().max(UVec3::ONE);
         let voxels = dims.x as u64 * dims.y as u64 * dims.z as u64;
@@ -36,25 +41,46 @@ impl SharedShadowGrid {
             ctx.max_storage_binding as f64 / 1048576.0
         );
         let layout = ctx.storage_layout("shared grid", &[true, true]);
-        let module = ctx.shader("shared_grid", &[super::COMMON_WGSL, super::BVH_WGSL, include_str!("../../shaders/shared_grid.wgsl")]);
+        let module = ctx.shader(
+            "shared_grid",
+            &[
+                super::COMMON_WGSL,
+                super::BVH_WGSL,
+                include_str!("../../shaders/shared_grid.wgsl"),
+            ],
+        );
         Ok(SharedShadowGrid {
             min: bounds.0,
             voxel_size_m,
             dims,
             words_x,
             grid: ctx.storage("shared grid", words * 4, wgpu::BufferUsages::empty())?,
-            touched: ctx.storage("shared grid touched", words.div_ceil(8) * 4, wgpu::BufferUsages::empty())?,
+            touched: ctx.storage(
+                "shared grid touched",
+                words.div_ceil(8) * 4,
+                wgpu::BufferUsages::empty(),
+            )?,
             pipeline: ctx.compute_pipeline("shared_grid", &module, &[scene_layout, &layout]),
             layout,
         })
     }
 
     pub(crate) fn workgroups(&self) -> [u32; 3] {
-        [self.words_x.div_ceil(4), self.dims.y.div_ceil(4), self.dims.z.div_ceil(4)]
+        [
+            self.words_x.div_ceil(4),
+            self.dims.y.div_ceil(4),
+            self.dims.z.div_ceil(4),
+        ]
     }
 
     /// Records the grid update: every voxel inside some frustum traces one ray per light.
-    pub(crate) fn add_pass(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, scene: &wgpu::BindGroup, ts: &Timestamps) {
+    pub(crate) fn add_pass(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &wgpu::BindGroup,
+        ts: &Timestamps,
+    ) {
         enc.clear_buffer(&self.touched, 0, None);
         let bg = ctx.bind_buffers("shared grid", &self.layout, &[&self.grid, &self.touched]);
         let mut pass = compute_pass(enc, "shared_grid", ts.writes(super::Stage::SharedGrid));

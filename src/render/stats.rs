@@ -111,11 +111,20 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
     };
     rays.fog_total = rays.shared_grid + rays.shadow_frustum + rays.froxel_lighting;
     rays.total = rays.fog_total + rays.surface;
-    let mut shared: Vec<(String, u64)> = i.scene_memory.iter().map(|(n, b)| (n.to_string(), *b)).collect();
+    let mut shared: Vec<(String, u64)> = i
+        .scene_memory
+        .iter()
+        .map(|(n, b)| (n.to_string(), *b))
+        .collect();
     if let Some(g) = i.grid {
         shared.push(("shared_grid".into(), g.bytes()));
     }
-    let per_viewer: Vec<(String, u64)> = i.volumes.memory_per_viewer().into_iter().map(|(n, b)| (n.to_string(), b)).collect();
+    let per_viewer: Vec<(String, u64)> = i
+        .volumes
+        .memory_per_viewer()
+        .into_iter()
+        .map(|(n, b)| (n.to_string(), b))
+        .collect();
     let shared_total = shared.iter().map(|(_, b)| b).sum();
     let per_viewer_total = per_viewer.iter().map(|(_, b)| b).sum::<u64>();
     FrameStats {
@@ -131,7 +140,11 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         voxels_traced: c(C_VOXELS_TRACED),
         froxels_with_media: c(C_FROXELS_WITH_MEDIA),
         grid_dims: i.grid.map_or([0; 3], |g| g.dims.to_array()),
-        dispatches: i.dispatches.into_iter().map(|(n, d)| (n.to_string(), d)).collect(),
+        dispatches: i
+            .dispatches
+            .into_iter()
+            .map(|(n, d)| (n.to_string(), d))
+            .collect(),
         memory: MemoryReport {
             total: shared_total + per_viewer_total * i.volumes.count as u64,
             shared,

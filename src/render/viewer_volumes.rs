@@ -48,17 +48,23 @@ impl ViewerVolumes {
     ) -> anyhow::Result<ViewerVolumes> {
         let n = count as u64;
         let froxels_per_view = (layout.froxel_dims[0] * layout.froxel_dims[1] * slices) as u64;
-        let frustum_per_view = (layout.frustum_dims[0] * layout.frustum_dims[1] * frustum_slices.max(1)) as u64;
+        let frustum_per_view =
+            (layout.frustum_dims[0] * layout.frustum_dims[1] * frustum_slices.max(1)) as u64;
         let pixels = (layout.width * layout.height) as u64;
         let tex = |label: &str, format: wgpu::TextureFormat| {
             ctx.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
-                size: wgpu::Extent3d { width: layout.width, height: layout.height, depth_or_array_layers: count as u32 },
+                size: wgpu::Extent3d {
+                    width: layout.width,
+                    height: layout.height,
+                    depth_or_array_layers: count as u32,
+                },
                 mip_level_count: 1,
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D2,
                 format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
                 view_formats: &[],
             })
         };
@@ -67,10 +73,30 @@ impl ViewerVolumes {
             layout,
             slices,
             frustum_slices,
-            froxels: ctx.storage("froxels", n * froxels_per_view * 8, wgpu::BufferUsages::empty())?,
-            froxel_history: ctx.storage("froxel history", if temporal { n * froxels_per_view * 8 } else { 16 }, wgpu::BufferUsages::empty())?,
-            integrated: ctx.storage("integrated", n * froxels_per_view * 8, wgpu::BufferUsages::empty())?,
-            frustum: ctx.storage("shadow frustum", n * frustum_per_view * 4, wgpu::BufferUsages::empty())?,
+            froxels: ctx.storage(
+                "froxels",
+                n * froxels_per_view * 8,
+                wgpu::BufferUsages::empty(),
+            )?,
+            froxel_history: ctx.storage(
+                "froxel history",
+                if temporal {
+                    n * froxels_per_view * 8
+                } else {
+                    16
+                },
+                wgpu::BufferUsages::empty(),
+            )?,
+            integrated: ctx.storage(
+                "integrated",
+                n * froxels_per_view * 8,
+                wgpu::BufferUsages::empty(),
+            )?,
+            frustum: ctx.storage(
+                "shadow frustum",
+                n * frustum_per_view * 4,
+                wgpu::BufferUsages::empty(),
+            )?,
             output: ctx.storage("output", n * pixels * 4, wgpu::BufferUsages::empty())?,
             gbuf_position: tex("gbuffer position", wgpu::TextureFormat::Rgba32Float),
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
@@ -92,7 +118,11 @@ impl ViewerVolumes {
     pub(crate) fn memory_per_viewer(&self) -> Vec<(&'static str, u64)> {
         let n = self.count.max(1) as u64;
         let pixels = (self.layout.width * self.layout.height) as u64;
-        let history = if self.froxel_history.size() > 16 { self.froxel_history.size() / n } else { 0 };
+        let history = if self.froxel_history.size() > 16 {
+            self.froxel_history.size() / n
+        } else {
+            0
+        };
         vec![
             ("froxels", self.froxels.size() / n),
             ("froxel_history", history),

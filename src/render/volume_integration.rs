@@ -13,8 +13,18 @@ pub(crate) struct VolumeIntegration {
 impl VolumeIntegration {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let layout = ctx.storage_layout("volume integration", &[false, true]);
-        let module = ctx.shader("volume_integration", &[super::COMMON_WGSL, super::BVH_WGSL, include_str!("../../shaders/volume_integration.wgsl")]);
-        VolumeIntegration { pipeline: ctx.compute_pipeline("volume_integration", &module, &[scene_layout, &layout]), layout }
+        let module = ctx.shader(
+            "volume_integration",
+            &[
+                super::COMMON_WGSL,
+                super::BVH_WGSL,
+                include_str!("../../shaders/volume_integration.wgsl"),
+            ],
+        );
+        VolumeIntegration {
+            pipeline: ctx.compute_pipeline("volume_integration", &module, &[scene_layout, &layout]),
+            layout,
+        }
     }
 
     pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
@@ -22,9 +32,24 @@ impl VolumeIntegration {
         [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
     }
 
-    pub(crate) fn add_pass(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, scene: &wgpu::BindGroup, volumes: &ViewerVolumes, ts: &Timestamps) {
-        let bg = ctx.bind_buffers("volume integration", &self.layout, &[&volumes.froxels, &volumes.integrated]);
-        let mut pass = compute_pass(enc, "volume_integration", ts.writes(Stage::VolumeIntegration));
+    pub(crate) fn add_pass(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &wgpu::BindGroup,
+        volumes: &ViewerVolumes,
+        ts: &Timestamps,
+    ) {
+        let bg = ctx.bind_buffers(
+            "volume integration",
+            &self.layout,
+            &[&volumes.froxels, &volumes.integrated],
+        );
+        let mut pass = compute_pass(
+            enc,
+            "volume_integration",
+            ts.writes(Stage::VolumeIntegration),
+        );
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, scene, &[]);
         pass.set_bind_group(1, &bg, &[]);

@@ -45,7 +45,11 @@ pub struct Camera {
 impl Camera {
     /// A camera at `position` looking along `forward` (any non-zero vector).
     pub fn new(position: Vec3, forward: Vec3, fov_y: f32) -> Camera {
-        Camera { position, forward: forward.try_normalize().unwrap_or(Vec3::NEG_Z), fov_y }
+        Camera {
+            position,
+            forward: forward.try_normalize().unwrap_or(Vec3::NEG_Z),
+            fov_y,
+        }
     }
 
     /// An up vector that is never parallel to `forward`.
@@ -107,7 +111,11 @@ impl CameraPath {
             }
         }
         if !self.look_at.is_empty() && self.look_at.len() != self.path.len() {
-            return Err(invalid("camera.look_at", self.look_at.len(), "needs one point per path point, or none"));
+            return Err(invalid(
+                "camera.look_at",
+                self.look_at.len(),
+                "needs one point per path point, or none",
+            ));
         }
         for (i, p) in self.look_at.iter().enumerate() {
             if !p.iter().all(|x| x.is_finite()) {
@@ -115,13 +123,25 @@ impl CameraPath {
             }
         }
         if !(self.fov_deg.is_finite() && (1.0..=170.0).contains(&self.fov_deg)) {
-            return Err(invalid("camera.fov_deg", self.fov_deg, "must be between 1 and 170 degrees"));
+            return Err(invalid(
+                "camera.fov_deg",
+                self.fov_deg,
+                "must be between 1 and 170 degrees",
+            ));
         }
         if !(self.pitch_deg.is_finite() && (-89.0..=89.0).contains(&self.pitch_deg)) {
-            return Err(invalid("camera.pitch_deg", self.pitch_deg, "must be between -89 and 89 degrees"));
+            return Err(invalid(
+                "camera.pitch_deg",
+                self.pitch_deg,
+                "must be between -89 and 89 degrees",
+            ));
         }
         if !(self.speed_mps.is_finite() && (0.0..=1e4).contains(&self.speed_mps)) {
-            return Err(invalid("camera.speed_mps", self.speed_mps, "must be between 0 and 10000"));
+            return Err(invalid(
+                "camera.speed_mps",
+                self.speed_mps,
+                "must be between 0 and 10000",
+            ));
         }
         Ok(())
     }
@@ -137,7 +157,13 @@ impl CameraPath {
     /// Segments of the closed loop (last point back to the first).
     fn segments(&self) -> impl Iterator<Item = (Vec3, Vec3, usize)> + '_ {
         let n = self.path.len();
-        (0..n).map(move |i| (Vec3::from(self.path[i]), Vec3::from(self.path[(i + 1) % n]), i))
+        (0..n).map(move |i| {
+            (
+                Vec3::from(self.path[i]),
+                Vec3::from(self.path[(i + 1) % n]),
+                i,
+            )
+        })
     }
 
     /// Length of the closed loop, metres.
@@ -152,8 +178,14 @@ impl CameraPath {
         for (a, b, i) in self.segments() {
             let len = a.distance(b);
             if rest <= len || i + 1 == n {
-                let t = if len > 0.0 { (rest / len).clamp(0.0, 1.0) } else { 0.0 };
-                let look = (!self.look_at.is_empty()).then(|| Vec3::from(self.look_at[i]).lerp(Vec3::from(self.look_at[(i + 1) % n]), t));
+                let t = if len > 0.0 {
+                    (rest / len).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let look = (!self.look_at.is_empty()).then(|| {
+                    Vec3::from(self.look_at[i]).lerp(Vec3::from(self.look_at[(i + 1) % n]), t)
+                });
                 return (a.lerp(b, t), look, (b - a).normalize_or(Vec3::NEG_Z));
             }
             rest -= len;
@@ -170,14 +202,25 @@ impl CameraPath {
         (0..n)
             .map(|i| {
                 let (pos, look, dir) = if len <= 0.0 {
-                    (Vec3::from(self.path[0]), self.look_at.first().map(|l| Vec3::from(*l)), Vec3::NEG_Z)
+                    (
+                        Vec3::from(self.path[0]),
+                        self.look_at.first().map(|l| Vec3::from(*l)),
+                        Vec3::NEG_Z,
+                    )
                 } else {
-                    self.sample(((i as f32 + 0.5) / n as f32 * len + time_s * self.speed_mps).rem_euclid(len))
+                    self.sample(
+                        ((i as f32 + 0.5) / n as f32 * len + time_s * self.speed_mps)
+                            .rem_euclid(len),
+                    )
                 };
                 let pitched = {
                     let flat = Vec3::new(dir.x, 0.0, dir.z).normalize_or(Vec3::NEG_Z);
                     let (s, c) = self.pitch_deg.to_radians().sin_cos();
-                    if dir.y.abs() > 0.99 { dir } else { flat * c + Vec3::Y * s }
+                    if dir.y.abs() > 0.99 {
+                        dir
+                    } else {
+                        flat * c + Vec3::Y * s
+                    }
                 };
                 let forward = match look {
                     Some(target) if target.distance(pos) > 1e-3 => target - pos,

@@ -1,18 +1,26 @@
 //! glTF/GLB loading (positions and indices of every mesh primitive, node transforms applied).
 
-use super::{CameraPath, LightDesc, MediumDesc, MediumKind, MeshDesc, RenderDefaults, SceneDesc, SceneError};
+use super::{
+    CameraPath, LightDesc, MediumDesc, MediumKind, MeshDesc, RenderDefaults, SceneDesc, SceneError,
+};
 use glam::{Mat4, Vec3};
 use std::path::Path;
 
 fn gltf_err(path: &Path, message: impl std::fmt::Display) -> SceneError {
-    SceneError::Gltf { path: path.to_path_buf(), message: message.to_string() }
+    SceneError::Gltf {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    }
 }
 
 /// Loads all triangles of a glTF file in its own coordinates (node transforms applied).
 /// A NaN or infinite vertex is an error naming the mesh and vertex.
 pub(crate) fn load_triangles(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>), SceneError> {
     if !path.exists() {
-        return Err(gltf_err(path, "file not found (paths are relative to the scene file)"));
+        return Err(gltf_err(
+            path,
+            "file not found (paths are relative to the scene file)",
+        ));
     }
     let (doc, buffers, _images) = gltf::import(path).map_err(|e| gltf_err(path, e))?;
     let mut positions = Vec::new();
@@ -33,11 +41,19 @@ pub(crate) fn load_triangles(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>), 
                 continue;
             }
             let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-            let Some(pos) = reader.read_positions() else { continue };
+            let Some(pos) = reader.read_positions() else {
+                continue;
+            };
             let base = positions.len() as u32;
             for (vi, p) in pos.enumerate() {
                 if !p.iter().all(|x| x.is_finite()) {
-                    return Err(gltf_err(path, format!("mesh {} vertex {vi} is {p:?}: positions must be finite", mesh.index())));
+                    return Err(gltf_err(
+                        path,
+                        format!(
+                            "mesh {} vertex {vi} is {p:?}: positions must be finite",
+                            mesh.index()
+                        ),
+                    ));
                 }
                 positions.push(m.transform_point3(Vec3::from(p)));
             }
@@ -48,7 +64,13 @@ pub(crate) fn load_triangles(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>), 
             };
             for t in idx.chunks_exact(3) {
                 if t.iter().any(|i| *i >= count) {
-                    return Err(gltf_err(path, format!("mesh {} index {t:?} out of range ({count} vertices)", mesh.index())));
+                    return Err(gltf_err(
+                        path,
+                        format!(
+                            "mesh {} index {t:?} out of range ({count} vertices)",
+                            mesh.index()
+                        ),
+                    ));
                 }
                 indices.push([t[0] + base, t[1] + base, t[2] + base]);
             }
@@ -65,7 +87,10 @@ pub(crate) fn load_triangles(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>), 
 /// the middle of the bounds at a third of the height.
 pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
     let (pos, _) = load_triangles(path)?;
-    let (lo, hi) = pos.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| (a.min(*p), b.max(*p)));
+    let (lo, hi) = pos.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(a, b), p| (a.min(*p), b.max(*p)),
+    );
     let size = hi - lo;
     let centre = (lo + hi) * 0.5;
     let y = lo.y + size.y * 0.3;
@@ -79,12 +104,28 @@ pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
         }
         p.to_array()
     };
-    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("gltf").to_string();
+    let name = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("gltf")
+        .to_string();
     Ok(SceneDesc {
         name,
-        render: RenderDefaults { far_m: size.length().clamp(8.0, 1000.0), ..RenderDefaults::default() },
-        meshes: vec![MeshDesc::Gltf { path: path.to_path_buf(), translate: [0.0; 3], scale: 1.0, albedo: [0.7, 0.65, 0.55] }],
-        lights: vec![LightDesc::Directional { direction: [0.25, -1.0, 0.18], color: [1.0, 0.92, 0.8], intensity: 6.0 }],
+        render: RenderDefaults {
+            far_m: size.length().clamp(8.0, 1000.0),
+            ..RenderDefaults::default()
+        },
+        meshes: vec![MeshDesc::Gltf {
+            path: path.to_path_buf(),
+            translate: [0.0; 3],
+            scale: 1.0,
+            albedo: [0.7, 0.65, 0.55],
+        }],
+        lights: vec![LightDesc::Directional {
+            direction: [0.25, -1.0, 0.18],
+            color: [1.0, 0.92, 0.8],
+            intensity: 6.0,
+        }],
         media: vec![MediumDesc {
             kind: MediumKind::Box,
             scattering: [0.06, 0.06, 0.06],

@@ -19,7 +19,11 @@ impl TriangleMesh {
     /// The three corners of triangle `i`.
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
         let [a, b, c] = self.indices[i];
-        [self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]]
+        [
+            self.positions[a as usize],
+            self.positions[b as usize],
+            self.positions[c as usize],
+        ]
     }
 
     /// Number of triangles.
@@ -51,7 +55,8 @@ impl WorldMesh {
     pub(crate) fn push(&mut self, positions: &[DVec3], indices: &[[u32; 3]], albedo: [f32; 3]) {
         let base = self.world_positions.len() as u32;
         self.world_positions.extend_from_slice(positions);
-        self.albedo.extend(std::iter::repeat_n(pack_albedo(albedo), positions.len()));
+        self.albedo
+            .extend(std::iter::repeat_n(pack_albedo(albedo), positions.len()));
         for t in indices {
             let [a, b, c] = t.map(|i| positions[i as usize]);
             if (b - a).cross(c - a).length_squared() > 0.0 {
@@ -62,7 +67,11 @@ impl WorldMesh {
 
     pub(crate) fn into_render_space(self, origin: DVec3) -> TriangleMesh {
         TriangleMesh {
-            positions: self.world_positions.iter().map(|p| (*p - origin).as_vec3()).collect(),
+            positions: self
+                .world_positions
+                .iter()
+                .map(|p| (*p - origin).as_vec3())
+                .collect(),
             albedo: self.albedo,
             indices: self.indices,
         }
@@ -90,16 +99,32 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
     for (i, d) in descs.iter().enumerate() {
         let f = |name: &str| format!("mesh[{i}].{name}");
         match d {
-            MeshDesc::Gltf { path, translate, scale, albedo } => {
+            MeshDesc::Gltf {
+                path,
+                translate,
+                scale,
+                albedo,
+            } => {
                 check_albedo(f("albedo"), *albedo)?;
                 check_point(f("translate"), *translate)?;
                 if !(scale.is_finite() && *scale > 0.0) {
                     return Err(invalid(f("scale"), scale, "must be a positive number"));
                 }
-                let full = if path.is_absolute() { path.clone() } else { base_dir.join(path) };
+                let full = if path.is_absolute() {
+                    path.clone()
+                } else {
+                    base_dir.join(path)
+                };
+                if !full.is_file() {
+                    let reason = format!("no such file: looked for {} (relative paths start at the scene file's folder)", full.display());
+                    return Err(invalid(f("path"), path, &reason));
+                }
                 let (pos, idx) = gltf_load::load_triangles(&full)?;
                 let t = Vec3::from(*translate).as_dvec3();
-                let moved: Vec<DVec3> = pos.iter().map(|p| p.as_dvec3() * *scale as f64 + t).collect();
+                let moved: Vec<DVec3> = pos
+                    .iter()
+                    .map(|p| p.as_dvec3() * *scale as f64 + t)
+                    .collect();
                 out.push(&moved, &idx, *albedo);
             }
             MeshDesc::Box { min, max, albedo } => {
@@ -107,12 +132,23 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
                 check_point(f("min"), *min)?;
                 check_point(f("max"), *max)?;
                 if (0..3).any(|k| max[k] <= min[k]) {
-                    return Err(invalid(f("max"), max, "must be greater than min on every axis"));
+                    return Err(invalid(
+                        f("max"),
+                        max,
+                        "must be greater than min on every axis",
+                    ));
                 }
-                let (p, t) = box_triangles(Vec3::from(*min).as_dvec3(), Vec3::from(*max).as_dvec3());
+                let (p, t) =
+                    box_triangles(Vec3::from(*min).as_dvec3(), Vec3::from(*max).as_dvec3());
                 out.push(&p, &t, *albedo);
             }
-            MeshDesc::Cylinder { base, radius, height, segments, albedo } => {
+            MeshDesc::Cylinder {
+                base,
+                radius,
+                height,
+                segments,
+                albedo,
+            } => {
                 check_albedo(f("albedo"), *albedo)?;
                 check_point(f("base"), *base)?;
                 if !(radius.is_finite() && *radius > 0.0) {
@@ -122,9 +158,18 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
                     return Err(invalid(f("height"), height, "must be a positive number"));
                 }
                 if !(3..=256).contains(segments) {
-                    return Err(invalid(f("segments"), segments, "must be between 3 and 256"));
+                    return Err(invalid(
+                        f("segments"),
+                        segments,
+                        "must be between 3 and 256",
+                    ));
                 }
-                let (p, t) = cylinder_triangles(Vec3::from(*base).as_dvec3(), *radius as f64, *height as f64, *segments);
+                let (p, t) = cylinder_triangles(
+                    Vec3::from(*base).as_dvec3(),
+                    *radius as f64,
+                    *height as f64,
+                    *segments,
+                );
                 out.push(&p, &t, *albedo);
             }
         }
@@ -135,10 +180,26 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
 /// 12 outward-facing triangles of an axis-aligned box.
 pub(crate) fn box_triangles(lo: DVec3, hi: DVec3) -> (Vec<DVec3>, Vec<[u32; 3]>) {
     let p: Vec<DVec3> = (0..8)
-        .map(|i| DVec3::new(if i & 1 != 0 { hi.x } else { lo.x }, if i & 2 != 0 { hi.y } else { lo.y }, if i & 4 != 0 { hi.z } else { lo.z }))
+        .map(|i| {
+            DVec3::new(
+                if i & 1 != 0 { hi.x } else { lo.x },
+                if i & 2 != 0 { hi.y } else { lo.y },
+                if i & 4 != 0 { hi.z } else { lo.z },
+            )
+        })
         .collect();
-    let faces = [[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [2, 6, 7, 3], [0, 2, 3, 1], [4, 5, 7, 6]];
-    let t = faces.iter().flat_map(|[a, b, c, d]| [[*a, *b, *c], [*a, *c, *d]]).collect();
+    let faces = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
+    let t = faces
+        .iter()
+        .flat_map(|[a, b, c, d]| [[*a, *b, *c], [*a, *c, *d]])
+        .collect();
     (p, t)
 }
 
