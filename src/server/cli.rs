@@ -1,0 +1,103 @@
+//! `fogcast serve` flags: a config file, then flags over it.
+
+use super::{Server, ServerConfig};
+use crate::render::Mode;
+use std::net::IpAddr;
+use std::path::PathBuf;
+
+/// Flags of `fogcast serve`; each overrides the same key of `--config`.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ServeArgs {
+    /// TOML config file (keys as in docs/protocol.md, "Server configuration").
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Built-in scene (colonnade, street, islands), a scene .toml, or a .glb/.gltf file [default: colonnade].
+    #[arg(long)]
+    pub scene: Option<String>,
+    /// Rendering mode [default: shared].
+    #[arg(long, value_enum)]
+    pub mode: Option<Mode>,
+    /// Address to listen on [default: 127.0.0.1].
+    #[arg(long)]
+    pub addr: Option<IpAddr>,
+    /// Port (0: any free port) [default: 8080].
+    #[arg(long)]
+    pub port: Option<u16>,
+    /// Frame rate cap [default: 30].
+    #[arg(long)]
+    pub fps: Option<f64>,
+    /// Views rendered in total over all sessions [default: 16].
+    #[arg(long)]
+    pub max_views: Option<usize>,
+    /// Largest frame width a client may ask for [default: 1920].
+    #[arg(long)]
+    pub max_width: Option<u32>,
+    /// Largest frame height a client may ask for [default: 1080].
+    #[arg(long)]
+    pub max_height: Option<u32>,
+    /// JPEG quality for clients that name none [default: 75].
+    #[arg(long)]
+    pub quality: Option<u8>,
+    /// Token clients must send in their hello [default: none, open server].
+    #[arg(long)]
+    pub token: Option<String>,
+}
+
+impl ServeArgs {
+    /// The config file (or the defaults) with every given flag applied, checked.
+    pub fn config(&self) -> anyhow::Result<ServerConfig> {
+        let mut c = match &self.config {
+            Some(path) => ServerConfig::load(path)?,
+            None => ServerConfig::default(),
+        };
+        if let Some(v) = &self.scene {
+            c.scene = v.clone();
+        }
+        if let Some(v) = self.mode {
+            c.mode = v;
+        }
+        if let Some(v) = self.addr {
+            c.addr = v;
+        }
+        if let Some(v) = self.port {
+            c.port = v;
+        }
+        if let Some(v) = self.fps {
+            c.fps = v;
+        }
+        if let Some(v) = self.max_views {
+            c.max_views = v;
+        }
+        if let Some(v) = self.max_width {
+            c.max_width = v;
+        }
+        if let Some(v) = self.max_height {
+            c.max_height = v;
+        }
+        if let Some(v) = self.quality {
+            c.default_quality = v;
+        }
+        if let Some(v) = &self.token {
+            c.token = Some(v.clone());
+        }
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+/// Runs `fogcast serve` until Ctrl-C or SIGTERM; prints the client's URL once listening.
+pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
+    let config = args.config()?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .thread_name("fogcast-io")
+        .build()?;
+    runtime.block_on(async move {
+        let server = Server::start(config).await?;
+        println!(
+            "fogcast serving {} — open it in a browser (Ctrl-C stops)",
+            server.url()
+        );
+        server.run_until_signal().await
+    })
+}

@@ -1,0 +1,194 @@
+//! Server settings: defaults, a TOML config file, and the checks that run before start.
+
+use super::protocol::SpecLimits;
+use crate::render::Mode;
+use anyhow::Context as _;
+use serde::{Deserialize, Serialize};
+use std::net::{IpAddr, Ipv4Addr};
+use std::path::Path;
+
+/// Everything `fogcast serve` can be told; a config file holds any subset of these keys
+/// (see `docs/protocol.md` for the example file), flags override it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServerConfig {
+    /// Built-in scene name, scene .toml or .glb/.gltf file.
+    pub scene: String,
+    /// Rendering mode.
+    pub mode: Mode,
+    /// Address to listen on.
+    pub addr: IpAddr,
+    /// Port to listen on (0: any free port, reported at start).
+    pub port: u16,
+    /// Frame rate cap of the render loop, frames per second.
+    pub fps: f64,
+    /// Views rendered in total over all sessions (mono 1, stereo 2, split 2–4 each).
+    pub max_views: usize,
+    /// Open WebSocket connections, sessions and handshakes together.
+    pub max_connections: usize,
+    /// Largest frame width a client may ask for, pixels.
+    pub max_width: u32,
+    /// Largest frame height a client may ask for, pixels.
+    pub max_height: u32,
+    /// JPEG quality when a hello names none (1–100).
+    pub default_quality: u8,
+    /// Access token clients must send in their hello; none: open server.
+    pub token: Option<String>,
+    /// Seconds a new connection has to send its hello.
+    pub hello_timeout_s: f64,
+    /// Seconds one frame may take to leave the server before the session is closed as stalled.
+    pub stall_timeout_s: f64,
+    /// Largest client text message, bytes.
+    pub max_message_bytes: usize,
+    /// Sustained client messages per second; beyond it messages are dropped, and at
+    /// twice the rate for a second the session is closed.
+    pub max_messages_per_s: f64,
+    /// Kernel send buffer of each connection, bytes: small keeps latency low, because
+    /// frames waiting in the kernel cannot be replaced by newer ones.
+    pub send_buffer_bytes: usize,
+    /// JPEG encoder threads (0: one per core).
+    pub encode_threads: usize,
+    /// Shared grid voxel size in metres (default: the scene's).
+    pub voxel_size_m: Option<f32>,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        ServerConfig {
+            scene: "colonnade".into(),
+            mode: Mode::Shared,
+            addr: IpAddr::V4(Ipv4Addr::LOCALHOST),
+            port: 8080,
+            fps: 30.0,
+            max_views: 16,
+            max_connections: 64,
+            max_width: 1920,
+            max_height: 1080,
+            default_quality: 75,
+            token: None,
+            hello_timeout_s: 10.0,
+            stall_timeout_s: 30.0,
+            max_message_bytes: 16 * 1024,
+            max_messages_per_s: 120.0,
+            send_buffer_bytes: 256 * 1024,
+            encode_threads: 0,
+            voxel_size_m: None,
+        }
+    }
+}
+
+impl ServerConfig {
+    /// Reads a TOML config file; keys it leaves out keep their defaults.
+    pub fn load(path: &Path) -> anyhow::Result<ServerConfig> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("reading server config {}", path.display()))?;
+        let config: ServerConfig = toml::from_str(&text)
+            .with_context(|| format!("parsing server config {}", path.display()))?;
+        Ok(config)
+    }
+
+    /// Checks every range; the error names the key, the value and the range.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.fps.is_finite() && self.fps > 0.0 && self.fps <= 240.0,
+            "fps {}: must be in (0, 240]",
+            self.fps
+        );
+        anyhow::ensure!(
+            (1..=256).contains(&self.max_views),
+            "max_views {}: must be 1..=256",
+            self.max_views
+        );
+        anyhow::ensure!(
+            (1..=4096).contains(&self.max_connections),
+            "max_connections {}: must be 1..=4096",
+            self.max_connections
+        );
+        anyhow::ensure!(
+            (16..=8192).contains(&self.max_width),
+            "max_width {}: must be 16..=8192",
+            self.max_width
+        );
+        anyhow::ensure!(
+            (16..=8192).contains(&self.max_height),
+            "max_height {}: must be 16..=8192",
+            self.max_height
+        );
+        anyhow::ensure!(
+            (1..=100).contains(&self.default_quality),
+            "default_quality {}: must be 1..=100",
+            self.default_quality
+        );
+        if let Some(t) = &self.token {
+            anyhow::ensure!(
+                !t.is_empty() && t.len() <= 256,
+                "token: must be 1 to 256 bytes (or absent for an open server)"
+            );
+        }
+        for (name, v) in [
+            ("hello_timeout_s", self.hello_timeout_s),
+            ("stall_timeout_s", self.stall_timeout_s),
+        ] {
+            anyhow::ensure!(
+                v.is_finite() && (0.05..=3600.0).contains(&v),
+                "{name} {v}: must be 0.05..=3600 seconds"
+            );
+        }
+        anyhow::ensure!(
+            (256..=1 << 20).contains(&self.max_message_bytes),
+            "max_message_bytes {}: must be 256..=1048576",
+            self.max_message_bytes
+        );
+        anyhow::ensure!(
+            self.max_messages_per_s.is_finite()
+                && (1.0..=10_000.0).contains(&self.max_messages_per_s),
+            "max_messages_per_s {}: must be 1..=10000",
+            self.max_messages_per_s
+        );
+        anyhow::ensure!(
+            (4096..=64 << 20).contains(&self.send_buffer_bytes),
+            "send_buffer_bytes {}: must be 4096..=67108864",
+            self.send_buffer_bytes
+        );
+        anyhow::ensure!(
+            self.encode_threads <= 256,
+            "encode_threads {}: must be 0..=256",
+            self.encode_threads
+        );
+        Ok(())
+    }
+
+    pub(crate) fn spec_limits(&self) -> SpecLimits {
+        SpecLimits {
+            max_width: self.max_width,
+            max_height: self.max_height,
+            default_quality: self.default_quality,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_file_overrides_some_keys() {
+        let c: ServerConfig = toml::from_str("scene = \"street\"\nport = 9000\nmax_views = 4\ntoken = \"s3cret\"\nmode = \"reference\"\n").unwrap();
+        assert_eq!(
+            (c.scene.as_str(), c.port, c.max_views, c.mode),
+            ("street", 9000, 4, Mode::Reference)
+        );
+        assert_eq!(c.fps, ServerConfig::default().fps);
+        c.validate().unwrap();
+        assert!(
+            toml::from_str::<ServerConfig>("prot = 1").is_err(),
+            "unknown keys are rejected"
+        );
+        assert!(ServerConfig {
+            fps: f64::NAN,
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
+    }
+}

@@ -1,0 +1,321 @@
+//! The state the render thread and the session tasks share: the session table (view
+//! accounting, latest poses) and each session's latest-frame slot.
+//!
+//! Locks here are held for a copy or an insert, never across I/O or a render.
+
+use super::config::ServerConfig;
+use super::protocol::{cameras_for, CheckedPose, ErrorCode, Layout, ProtocolError, SessionSpec};
+use super::telemetry::{DropReason, Telemetry};
+use crate::scene::{Camera, Scene};
+use axum::body::Bytes;
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+use tokio::sync::Notify;
+
+/// One encoded frame: header + JPEG, ready to send.
+#[derive(Debug, Clone)]
+pub(crate) struct EncodedFrame {
+    pub(crate) bytes: Bytes,
+}
+
+/// Latest-frame-wins mailbox between the encoders and one session's writer: holds at
+/// most one frame; publishing over an unsent frame drops the old one (counted).
+pub(crate) struct FrameSlot {
+    frame: Mutex<Option<EncodedFrame>>,
+    ready: Notify,
+    telemetry: Arc<Telemetry>,
+}
+
+impl FrameSlot {
+    fn new(telemetry: Arc<Telemetry>) -> FrameSlot {
+        FrameSlot {
+            frame: Mutex::new(None),
+            ready: Notify::new(),
+            telemetry,
+        }
+    }
+
+    /// Stores `frame`; returns whether it replaced one the client had not taken.
+    pub(crate) fn publish(&self, frame: EncodedFrame) -> bool {
+        let add = frame.bytes.len() as i64;
+        let old = lock(&self.frame).replace(frame);
+        let removed = old.as_ref().map_or(0, |f| f.bytes.len() as i64);
+        self.telemetry.slot_bytes.fetch_add(add - removed, Relaxed);
+        self.ready.notify_one();
+        old.is_some()
+    }
+
+    pub(crate) fn take(&self) -> Option<EncodedFrame> {
+        let f = lock(&self.frame).take();
+        if let Some(f) = &f {
+            self.telemetry
+                .slot_bytes
+                .fetch_sub(f.bytes.len() as i64, Relaxed);
+        }
+        f
+    }
+
+    /// Resolves when a frame has been published since the last call.
+    pub(crate) async fn ready(&self) {
+        self.ready.notified().await
+    }
+}
+
+impl Drop for FrameSlot {
+    fn drop(&mut self) {
+        self.take();
+    }
+}
+
+/// Mutable state of a session, read by the render thread once per frame.
+#[derive(Debug, Clone)]
+pub(crate) struct SessionView {
+    pub(crate) spec: SessionSpec,
+    pub(crate) poses: Vec<CheckedPose>,
+    /// Sequence number of the last pose message applied (0 before the first).
+    pub(crate) pose_seq: u32,
+}
+
+/// One session as the render loop and encoders see it.
+pub(crate) struct SessionShared {
+    pub(crate) id: u64,
+    view: Mutex<SessionView>,
+    pub(crate) slot: FrameSlot,
+    /// Set while an encoder works on this session's frame (at most one at a time).
+    pub(crate) encoding: AtomicBool,
+    pub(crate) dropped: AtomicU64,
+    pub(crate) sent: AtomicU64,
+}
+
+impl SessionShared {
+    pub(crate) fn view(&self) -> SessionView {
+        lock(&self.view).clone()
+    }
+
+    pub(crate) fn set_poses(&self, seq: u32, poses: Vec<CheckedPose>) {
+        let mut v = lock(&self.view);
+        v.poses = poses;
+        v.pose_seq = seq;
+    }
+
+    pub(crate) fn count_drop(&self, telemetry: &Telemetry, reason: DropReason) {
+        self.dropped.fetch_add(1, Relaxed);
+        telemetry.dropped(reason);
+    }
+}
+
+/// What the render thread takes from one session for one frame.
+pub(crate) struct SessionSnapshot {
+    pub(crate) session: Arc<SessionShared>,
+    pub(crate) spec: SessionSpec,
+    pub(crate) cameras: Vec<Camera>,
+    pub(crate) pose_seq: u32,
+}
+
+/// The shared server state.
+pub(crate) struct Hub {
+    pub(crate) config: ServerConfig,
+    pub(crate) scene: Arc<Scene>,
+    pub(crate) telemetry: Arc<Telemetry>,
+    sessions: Mutex<BTreeMap<u64, Arc<SessionShared>>>,
+    next_id: AtomicU64,
+    /// Wakes the render thread when the first session arrives or on shutdown.
+    wake: Condvar,
+    pub(crate) shutdown: AtomicBool,
+    pub(crate) started: Instant,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding one of these locks cannot leave the data half-written
+    // (every critical section is a plain copy or insert), so poisoning is ignored.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn views_of(sessions: &BTreeMap<u64, Arc<SessionShared>>) -> usize {
+    sessions
+        .values()
+        .map(|s| lock(&s.view).spec.views as usize)
+        .sum()
+}
+
+impl Hub {
+    pub(crate) fn new(config: ServerConfig, scene: Arc<Scene>) -> Hub {
+        Hub {
+            config,
+            scene,
+            telemetry: Arc::new(Telemetry::default()),
+            sessions: Mutex::new(BTreeMap::new()),
+            next_id: AtomicU64::new(1),
+            wake: Condvar::new(),
+            shutdown: AtomicBool::new(false),
+            started: Instant::now(),
+        }
+    }
+
+    /// The scene's default viewpoints for a new session of `spec`.
+    pub(crate) fn default_poses(&self, spec: &SessionSpec) -> Vec<CheckedPose> {
+        let n = spec.pose_count();
+        let t = self.started.elapsed().as_secs_f32();
+        self.scene
+            .camera
+            .viewers(n, t)
+            .iter()
+            .map(CheckedPose::from_camera)
+            .collect()
+    }
+
+    /// Adds a session if its views fit under `max_views`; the guard removes it on drop.
+    pub(crate) fn register(
+        self: &Arc<Hub>,
+        spec: SessionSpec,
+    ) -> Result<SessionGuard, ProtocolError> {
+        let poses = self.default_poses(&spec);
+        let mut sessions = lock(&self.sessions);
+        let used = views_of(&sessions);
+        if used + spec.views as usize > self.config.max_views {
+            return Err(full_error(spec.views, used, self.config.max_views));
+        }
+        let id = self.next_id.fetch_add(1, Relaxed);
+        let shared = Arc::new(SessionShared {
+            id,
+            view: Mutex::new(SessionView {
+                spec,
+                poses,
+                pose_seq: 0,
+            }),
+            slot: FrameSlot::new(self.telemetry.clone()),
+            encoding: AtomicBool::new(false),
+            dropped: AtomicU64::new(0),
+            sent: AtomicU64::new(0),
+        });
+        sessions.insert(id, shared.clone());
+        drop(sessions);
+        self.telemetry.sessions_total.fetch_add(1, Relaxed);
+        self.wake.notify_all();
+        Ok(SessionGuard {
+            hub: self.clone(),
+            session: shared,
+        })
+    }
+
+    /// Changes a session's spec if the new view count fits; poses are kept when the
+    /// layout's pose count is unchanged, else reset to the scene's defaults.
+    pub(crate) fn reconfigure(
+        &self,
+        session: &SessionShared,
+        spec: SessionSpec,
+    ) -> Result<SessionView, ProtocolError> {
+        let defaults = self.default_poses(&spec);
+        let sessions = lock(&self.sessions);
+        let mut view = lock(&session.view);
+        let others = sessions
+            .values()
+            .filter(|s| s.id != session.id)
+            .map(|s| lock(&s.view).spec.views as usize)
+            .sum::<usize>();
+        if others + spec.views as usize > self.config.max_views {
+            return Err(full_error(spec.views, others, self.config.max_views));
+        }
+        if view.spec.pose_count() != spec.pose_count() {
+            view.poses = defaults;
+        }
+        view.spec = spec;
+        Ok(view.clone())
+    }
+
+    /// Sessions and views now.
+    pub(crate) fn counts(&self) -> (usize, usize) {
+        let sessions = lock(&self.sessions);
+        (sessions.len(), views_of(&sessions))
+    }
+
+    /// Every session's spec, cameras and pose sequence number, in session order.
+    pub(crate) fn snapshot(&self) -> Vec<SessionSnapshot> {
+        let sessions: Vec<Arc<SessionShared>> = lock(&self.sessions).values().cloned().collect();
+        sessions
+            .into_iter()
+            .map(|session| {
+                let v = session.view();
+                SessionSnapshot {
+                    cameras: cameras_for(&v.spec, &v.poses),
+                    spec: v.spec,
+                    pose_seq: v.pose_seq,
+                    session,
+                }
+            })
+            .collect()
+    }
+
+    /// Blocks the render thread until a session exists, shutdown, or `timeout`.
+    pub(crate) fn wait_for_sessions(&self, timeout: Duration) {
+        let sessions = lock(&self.sessions);
+        if sessions.is_empty() && !self.shutdown.load(Relaxed) {
+            let _ = self.wake.wait_timeout(sessions, timeout);
+        }
+    }
+
+    pub(crate) fn begin_shutdown(&self) {
+        self.shutdown.store(true, Relaxed);
+        let _guard = lock(&self.sessions);
+        self.wake.notify_all();
+    }
+}
+
+fn full_error(asked: u32, used: usize, max: usize) -> ProtocolError {
+    ProtocolError::new(
+        ErrorCode::ServerFull,
+        format!("the server renders at most {max} views and {used} are in use; this session needs {asked}. Try again later or ask for fewer views"),
+    )
+}
+
+/// Keeps a session registered; dropping it (session end, any way) unregisters it.
+pub(crate) struct SessionGuard {
+    hub: Arc<Hub>,
+    pub(crate) session: Arc<SessionShared>,
+}
+
+impl Drop for SessionGuard {
+    fn drop(&mut self) {
+        lock(&self.hub.sessions).remove(&self.session.id);
+        // Free the frame waiting for this client now rather than when the last
+        // encoder job lets go of the session.
+        self.session.slot.take();
+    }
+}
+
+/// Counts an open connection; dropping it releases the slot.
+pub(crate) struct ConnectionGuard {
+    telemetry: Arc<Telemetry>,
+}
+
+impl ConnectionGuard {
+    /// A guard if fewer than `max` connections are open.
+    pub(crate) fn try_new(telemetry: &Arc<Telemetry>, max: usize) -> Option<ConnectionGuard> {
+        let prev = telemetry.connections.fetch_add(1, Relaxed);
+        if prev >= max as i64 {
+            telemetry.connections.fetch_sub(1, Relaxed);
+            telemetry.connections_refused.fetch_add(1, Relaxed);
+            return None;
+        }
+        Some(ConnectionGuard {
+            telemetry: telemetry.clone(),
+        })
+    }
+}
+
+impl Drop for ConnectionGuard {
+    fn drop(&mut self) {
+        self.telemetry.connections.fetch_sub(1, Relaxed);
+    }
+}
+
+/// Layout name for logs.
+pub(crate) fn layout_name(l: Layout) -> &'static str {
+    match l {
+        Layout::Mono => "mono",
+        Layout::Stereo => "stereo",
+        Layout::Split => "split",
+    }
+}

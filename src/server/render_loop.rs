@@ -1,0 +1,226 @@
+//! The render thread: the only owner of the wgpu device's work. Each frame it snapshots
+//! every session's latest poses, renders all views, and hands each session's images to
+//! the encoder pool. It never waits on a client: a session whose previous frame is still
+//! being encoded skips this one, and a frame nobody took is replaced (both counted).
+//!
+//! The renderer batches views of one size per call, while sessions may ask for
+//! different resolutions; so views are grouped by view size and each group is one
+//! `render` call (one submission with every view of that size) per frame. Each size has
+//! its own [`Renderer`] — its per-viewer volumes fit that size, so groups do not
+//! reallocate each other's volumes every frame — and the world-space grid is updated
+//! once per group. Clients that pick the same resolution therefore share everything.
+
+use super::encode::EncodeJob;
+use super::hub::{Hub, SessionSnapshot};
+use super::telemetry::DropReason;
+use crate::gpu::GpuContext;
+use crate::render::{Renderer, Settings};
+use crate::scene::Bvh;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::Ordering::{AcqRel, Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Renderers kept for view sizes no session uses right now (a client that reconnects or
+/// switches back avoids rebuilding pipelines).
+const IDLE_RENDERERS_KEPT: usize = 2;
+
+struct CachedRenderer {
+    renderer: Renderer,
+    last_frame: u64,
+}
+
+pub(crate) struct RenderLoop {
+    hub: Arc<Hub>,
+    ctx: Arc<GpuContext>,
+    bvh: Bvh,
+    settings: Settings,
+    encoders: rayon::ThreadPool,
+    renderers: HashMap<(u32, u32), CachedRenderer>,
+    frame: u64,
+}
+
+impl RenderLoop {
+    pub(crate) fn new(
+        hub: Arc<Hub>,
+        ctx: Arc<GpuContext>,
+        bvh: Bvh,
+        settings: Settings,
+    ) -> anyhow::Result<RenderLoop> {
+        let threads = match hub.config.encode_threads {
+            0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+            n => n,
+        };
+        let encoders = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("fogcast-encode-{i}"))
+            .build()?;
+        Ok(RenderLoop {
+            hub,
+            ctx,
+            bvh,
+            settings,
+            encoders,
+            renderers: HashMap::new(),
+            frame: 0,
+        })
+    }
+
+    /// Runs until the hub shuts down.
+    pub(crate) fn run(mut self) {
+        let period = Duration::from_secs_f64(1.0 / self.hub.config.fps);
+        let mut next = Instant::now();
+        while !self.hub.shutdown.load(Relaxed) {
+            let sessions = self.hub.snapshot();
+            if sessions.is_empty() {
+                self.evict_idle();
+                self.hub.wait_for_sessions(Duration::from_millis(250));
+                next = Instant::now();
+                continue;
+            }
+            let started = Instant::now();
+            self.render_frame(sessions);
+            self.hub
+                .telemetry
+                .frame_seconds
+                .observe_ms(started.elapsed().as_secs_f64() * 1e3);
+            // Frame pacing: hold the cap, but never try to catch up on missed frames.
+            next += period;
+            let now = Instant::now();
+            if next > now {
+                std::thread::sleep(next - now);
+            } else {
+                next = now;
+            }
+        }
+        tracing::info!(frames = self.frame, "render loop stopped");
+    }
+
+    fn render_frame(&mut self, sessions: Vec<SessionSnapshot>) {
+        self.frame += 1;
+        let frame_no = self.frame as u32;
+        let time_s = (self.hub.started.elapsed().as_secs_f64() % 86_400.0) as f32;
+        // Views grouped by size: (session index, view index) per camera.
+        let mut groups: BTreeMap<(u32, u32), Vec<(usize, usize)>> = BTreeMap::new();
+        for (si, s) in sessions.iter().enumerate() {
+            for vi in 0..s.cameras.len() {
+                groups
+                    .entry((s.spec.view_width, s.spec.view_height))
+                    .or_default()
+                    .push((si, vi));
+            }
+        }
+        let mut images: Vec<Vec<Option<Vec<u8>>>> = sessions
+            .iter()
+            .map(|s| vec![None; s.cameras.len()])
+            .collect();
+        let mut render_us = vec![0u32; sessions.len()];
+        for ((w, h), members) in &groups {
+            let cameras: Vec<_> = members
+                .iter()
+                .map(|&(si, vi)| sessions[si].cameras[vi])
+                .collect();
+            let renderer = match self.renderer_for(*w, *h) {
+                Ok(r) => r,
+                Err(e) => {
+                    self.hub.telemetry.render_errors.fetch_add(1, Relaxed);
+                    tracing::error!(width = w, height = h, error = %format!("{e:#}"), "creating a renderer failed");
+                    continue;
+                }
+            };
+            match renderer.render(&cameras, *w, *h, time_s) {
+                Ok(out) => {
+                    self.hub.telemetry.record_render(&out.stats);
+                    let us = (out.stats.frame_ms * 1e3) as u32;
+                    for (&(si, vi), img) in members.iter().zip(out.images) {
+                        images[si][vi] = Some(img);
+                        render_us[si] = render_us[si].max(us);
+                    }
+                }
+                Err(e) => {
+                    self.hub.telemetry.render_errors.fetch_add(1, Relaxed);
+                    tracing::error!(width = w, height = h, views = cameras.len(), error = %format!("{e:#}"), "render failed");
+                }
+            }
+        }
+        self.hub.telemetry.frames.fetch_add(1, Relaxed);
+        for ((snap, imgs), render_us) in sessions.into_iter().zip(images).zip(render_us) {
+            let Some(images) = imgs.into_iter().collect::<Option<Vec<_>>>() else {
+                continue;
+            };
+            if snap.session.encoding.swap(true, AcqRel) {
+                snap.session
+                    .count_drop(&self.hub.telemetry, DropReason::EncoderBusy);
+                continue;
+            }
+            let job = EncodeJob {
+                session: snap.session,
+                spec: snap.spec,
+                images,
+                frame: frame_no,
+                pose_seq: snap.pose_seq,
+                render_us,
+            };
+            let hub = self.hub.clone();
+            self.encoders.spawn(move || job.run(&hub));
+        }
+        self.evict_idle();
+    }
+
+    fn renderer_for(&mut self, width: u32, height: u32) -> anyhow::Result<&mut Renderer> {
+        let frame = self.frame;
+        if !self.renderers.contains_key(&(width, height)) {
+            let started = Instant::now();
+            let renderer = Renderer::with_bvh(
+                self.ctx.clone(),
+                self.hub.scene.clone(),
+                &self.bvh,
+                self.settings,
+            )?;
+            tracing::info!(
+                width,
+                height,
+                ms = started.elapsed().as_millis() as u64,
+                "renderer created for a new view size"
+            );
+            self.renderers.insert(
+                (width, height),
+                CachedRenderer {
+                    renderer,
+                    last_frame: frame,
+                },
+            );
+            self.hub
+                .telemetry
+                .renderers
+                .store(self.renderers.len() as i64, Relaxed);
+        }
+        let cached = self
+            .renderers
+            .get_mut(&(width, height))
+            .expect("inserted above");
+        cached.last_frame = frame;
+        Ok(&mut cached.renderer)
+    }
+
+    /// Drops the least recently used renderers beyond those in use plus a few idle ones.
+    fn evict_idle(&mut self) {
+        let mut idle: Vec<((u32, u32), u64)> = self
+            .renderers
+            .iter()
+            .filter(|(_, c)| c.last_frame < self.frame)
+            .map(|(k, c)| (*k, c.last_frame))
+            .collect();
+        if idle.len() <= IDLE_RENDERERS_KEPT {
+            return;
+        }
+        idle.sort_by_key(|(_, last)| *last);
+        for (key, _) in &idle[..idle.len() - IDLE_RENDERERS_KEPT] {
+            self.renderers.remove(key);
+        }
+        self.hub
+            .telemetry
+            .renderers
+            .store(self.renderers.len() as i64, Relaxed);
+    }
+}

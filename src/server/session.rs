@@ -1,0 +1,526 @@
+//! One WebSocket connection: handshake (hello → welcome), then a reader that validates
+//! every client message and a writer that sends the latest frame, in one task so that
+//! any end — close, error, stall, shutdown, a dropped TCP connection mid-handshake or
+//! mid-frame — drops the session guard and frees everything the session held.
+
+use super::hub::{layout_name, ConnectionGuard, Hub, SessionGuard, SessionShared};
+use super::protocol::{
+    check_pose, clip, parse_client_message, CheckedPose, ClientMessage, ErrorCode, ErrorMessage,
+    Hello, Limits, ProtocolError, ServerMessage, SessionSpec, Welcome, FOV_RANGE_DEG,
+    FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
+};
+use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
+use futures_util::stream::{SplitSink, SplitStream};
+use futures_util::{SinkExt as _, StreamExt as _};
+use std::net::SocketAddr;
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::{mpsc, watch};
+
+/// How long a closing session waits for the client's close reply.
+const CLOSE_GRACE: Duration = Duration::from_secs(2);
+/// Non-fatal errors a session may cause per [`ERROR_WINDOW`] before it is closed.
+const MAX_ERRORS_PER_WINDOW: u32 = 20;
+const ERROR_WINDOW: Duration = Duration::from_secs(10);
+/// Control messages (errors, welcomes) queued for the writer; more are dropped.
+const CONTROL_QUEUE: usize = 8;
+
+type Sink = SplitSink<WebSocket, Message>;
+type Stream = SplitStream<WebSocket>;
+
+/// A message for the writer.
+enum Control {
+    Text(String),
+    /// Send this fatal error and a close frame, then stop.
+    Close(ProtocolError),
+}
+
+/// Token bucket over every client message (text, binary, ping): `rate` per second
+/// sustained, bursts of one second's worth; the balance may go one second into debt
+/// (messages dropped with a warning) before the session counts as a flood.
+struct RateLimiter {
+    rate: f64,
+    tokens: f64,
+    last: Instant,
+    last_warning: Option<Instant>,
+}
+
+enum Rate {
+    Ok,
+    /// Drop the message; `warn` when the client should be told (at most once a second).
+    Drop {
+        warn: bool,
+    },
+    Flood,
+}
+
+impl RateLimiter {
+    fn new(rate: f64) -> RateLimiter {
+        RateLimiter {
+            rate,
+            tokens: rate,
+            last: Instant::now(),
+            last_warning: None,
+        }
+    }
+
+    fn check(&mut self) -> Rate {
+        let now = Instant::now();
+        self.tokens =
+            (self.tokens + now.duration_since(self.last).as_secs_f64() * self.rate).min(self.rate);
+        self.last = now;
+        self.tokens -= 1.0;
+        if self.tokens >= 0.0 {
+            Rate::Ok
+        } else if self.tokens >= -self.rate {
+            let warn = self
+                .last_warning
+                .is_none_or(|t| now.duration_since(t) >= Duration::from_secs(1));
+            if warn {
+                self.last_warning = Some(now);
+            }
+            Rate::Drop { warn }
+        } else {
+            Rate::Flood
+        }
+    }
+}
+
+fn error_json(e: &ProtocolError, fatal: bool) -> String {
+    ServerMessage::Error(ErrorMessage {
+        code: e.code,
+        message: e.message.clone(),
+        fatal,
+    })
+    .to_json()
+}
+
+/// Close reasons are limited to 123 bytes by RFC 6455.
+fn close_reason(e: &ProtocolError) -> Utf8Bytes {
+    let mut reason = format!("{}: {}", e.code.as_str(), e.message);
+    if reason.len() > 123 {
+        let mut cut = 120;
+        while !reason.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        reason.truncate(cut);
+        reason.push('…');
+    }
+    Utf8Bytes::from(reason)
+}
+
+/// Sends a fatal error and a close frame, then waits briefly for the client's close
+/// reply so the close frame is not lost to a TCP reset.
+async fn close_with(sink: &mut Sink, stream: &mut Stream, hub: &Hub, e: ProtocolError) {
+    hub.telemetry.client_error(e.code, true);
+    let frame = CloseFrame {
+        code: e.code.close_code(),
+        reason: close_reason(&e),
+    };
+    let send = async {
+        sink.send(Message::Text(error_json(&e, true).into()))
+            .await?;
+        sink.send(Message::Close(Some(frame))).await
+    };
+    if tokio::time::timeout(CLOSE_GRACE, send).await.is_ok() {
+        let _ = tokio::time::timeout(CLOSE_GRACE, async {
+            while let Some(Ok(_)) = stream.next().await {}
+        })
+        .await;
+    }
+}
+
+/// Runs a session to its end. `shutdown` turns true when the server stops.
+pub(crate) async fn run(
+    socket: WebSocket,
+    hub: Arc<Hub>,
+    peer: SocketAddr,
+    shutdown: watch::Receiver<bool>,
+    _conn: ConnectionGuard,
+) {
+    let (mut sink, mut stream) = socket.split();
+    let mut limiter = RateLimiter::new(hub.config.max_messages_per_s);
+    let hello_timeout = Duration::from_secs_f64(hub.config.hello_timeout_s);
+    let spec = match tokio::time::timeout(hello_timeout, handshake(&mut stream, &hub, &mut limiter))
+        .await
+    {
+        Ok(Ok(spec)) => spec,
+        Ok(Err(Some(e))) => {
+            tracing::info!(%peer, error = %e, "handshake refused");
+            return close_with(&mut sink, &mut stream, &hub, e).await;
+        }
+        Ok(Err(None)) => return,
+        Err(_) => {
+            let e = ProtocolError::new(
+                ErrorCode::HelloTimeout,
+                format!(
+                    "no hello within {} s of connecting",
+                    hub.config.hello_timeout_s
+                ),
+            );
+            return close_with(&mut sink, &mut stream, &hub, e).await;
+        }
+    };
+    let guard = match hub.register(spec) {
+        Ok(g) => g,
+        Err(e) => {
+            tracing::info!(%peer, error = %e, "session refused");
+            return close_with(&mut sink, &mut stream, &hub, e).await;
+        }
+    };
+    let id = guard.session.id;
+    tracing::info!(%peer, session = id, layout = layout_name(spec.layout), width = spec.width, height = spec.height, views = spec.views, "session opened");
+    let welcome = welcome(&hub, &guard.session);
+    if sink.send(Message::Text(welcome.into())).await.is_err() {
+        return;
+    }
+    let (ctl_tx, ctl_rx) = mpsc::channel(CONTROL_QUEUE);
+    let mut writer = std::pin::pin!(write_loop(sink, &hub, &guard, ctl_rx, shutdown));
+    let mut reader = std::pin::pin!(read_loop(stream, &hub, &guard, ctl_tx, limiter));
+    let end = tokio::select! {
+        end = &mut writer => {
+            // After a close frame went out, let the reader take the client's reply.
+            let _ = tokio::time::timeout(CLOSE_GRACE, &mut reader).await;
+            end
+        }
+        () = &mut reader => "client gone",
+    };
+    tracing::info!(
+        session = id,
+        sent = guard.session.sent.load(Relaxed),
+        dropped = guard.session.dropped.load(Relaxed),
+        end,
+        "session closed"
+    );
+}
+
+/// Reads until a valid hello; `Err(None)` when the client left, `Err(Some(e))` to refuse.
+async fn handshake(
+    stream: &mut Stream,
+    hub: &Hub,
+    limiter: &mut RateLimiter,
+) -> Result<SessionSpec, Option<ProtocolError>> {
+    loop {
+        let msg = match stream.next().await {
+            Some(Ok(m)) => m,
+            None | Some(Err(_)) => return Err(None),
+        };
+        if let Rate::Flood | Rate::Drop { .. } = limiter.check() {
+            return Err(Some(ProtocolError::new(
+                ErrorCode::RateLimited,
+                "too many messages before the hello",
+            )));
+        }
+        let text = match msg {
+            Message::Text(t) => t,
+            Message::Binary(b) => return Err(Some(binary_error(b.len()))),
+            Message::Ping(_) | Message::Pong(_) => continue,
+            Message::Close(_) => return Err(None),
+        };
+        if text.len() > hub.config.max_message_bytes {
+            return Err(Some(too_large(text.len(), hub.config.max_message_bytes)));
+        }
+        let hello = match parse_client_message(&text) {
+            Ok(ClientMessage::Hello(h)) => h,
+            Ok(_) => {
+                return Err(Some(ProtocolError::new(
+                    ErrorCode::HelloRequired,
+                    "the first message must be {\"type\":\"hello\", ...}",
+                )))
+            }
+            Err(e) => return Err(Some(e)),
+        };
+        return check_hello(&hello, hub).map_err(Some);
+    }
+}
+
+fn check_hello(h: &Hello, hub: &Hub) -> Result<SessionSpec, ProtocolError> {
+    if h.version != PROTOCOL_VERSION {
+        return Err(ProtocolError::new(
+            ErrorCode::UnsupportedVersion,
+            format!(
+                "protocol version {}: this server speaks version {PROTOCOL_VERSION}",
+                h.version
+            ),
+        ));
+    }
+    if let Some(want) = &hub.config.token {
+        match &h.token {
+            None => {
+                return Err(ProtocolError::new(
+                    ErrorCode::Unauthorized,
+                    "this server needs a token: add \"token\" to the hello",
+                ))
+            }
+            Some(t) if !constant_time_eq(t.as_bytes(), want.as_bytes()) => {
+                return Err(ProtocolError::new(ErrorCode::Unauthorized, "wrong token"))
+            }
+            Some(_) => {}
+        }
+    }
+    SessionSpec::from_hello(h, &hub.config.spec_limits())
+}
+
+/// Compares without an early exit, so response time does not leak the token's prefix.
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+fn binary_error(len: usize) -> ProtocolError {
+    ProtocolError::new(
+        ErrorCode::BinaryNotSupported,
+        format!("got a {len}-byte binary message; clients send only JSON text messages"),
+    )
+}
+
+fn too_large(len: usize, max: usize) -> ProtocolError {
+    ProtocolError::new(
+        ErrorCode::MessageTooLarge,
+        format!("a {len}-byte message; the limit is {max} bytes"),
+    )
+}
+
+fn welcome(hub: &Hub, session: &SessionShared) -> String {
+    let v = session.view();
+    let c = &hub.config;
+    ServerMessage::Welcome(Welcome {
+        session: session.id,
+        version: PROTOCOL_VERSION,
+        scene: hub.scene.name.clone(),
+        layout: v.spec.layout,
+        views: v.spec.views,
+        width: v.spec.width,
+        height: v.spec.height,
+        view_width: v.spec.view_width,
+        view_height: v.spec.view_height,
+        quality: v.spec.quality,
+        eye_distance_m: v.spec.eye_distance_m,
+        fps: c.fps,
+        header_bytes: FRAME_HEADER_BYTES,
+        poses: v.poses.iter().map(CheckedPose::to_view_pose).collect(),
+        limits: Limits {
+            max_message_bytes: c.max_message_bytes,
+            max_messages_per_s: c.max_messages_per_s,
+            max_width: c.max_width,
+            max_height: c.max_height,
+            min_view_px: MIN_VIEW_PX,
+            max_views: c.max_views,
+            max_coord_m: MAX_COORD_M,
+            fov_y_deg: [FOV_RANGE_DEG.0, FOV_RANGE_DEG.1],
+        },
+    })
+    .to_json()
+}
+
+/// Sends control messages and the latest frame; returns why it stopped.
+async fn write_loop(
+    mut sink: Sink,
+    hub: &Hub,
+    guard: &SessionGuard,
+    mut ctl: mpsc::Receiver<Control>,
+    mut shutdown: watch::Receiver<bool>,
+) -> &'static str {
+    let session = &guard.session;
+    let stall = Duration::from_secs_f64(hub.config.stall_timeout_s);
+    loop {
+        let msg = tokio::select! {
+            biased;
+            c = ctl.recv() => match c {
+                Some(Control::Text(t)) => Message::Text(t.into()),
+                Some(Control::Close(e)) => {
+                    hub.telemetry.client_error(e.code, true);
+                    let frame = CloseFrame { code: e.code.close_code(), reason: close_reason(&e) };
+                    let send = async {
+                        sink.send(Message::Text(error_json(&e, true).into())).await?;
+                        sink.send(Message::Close(Some(frame))).await
+                    };
+                    let _ = tokio::time::timeout(CLOSE_GRACE, send).await;
+                    return e.code.as_str();
+                }
+                None => return "reader ended",
+            },
+            _ = async { shutdown.wait_for(|stop| *stop).await.is_ok() } => {
+                let e = ProtocolError::new(ErrorCode::ShuttingDown, "the server is shutting down");
+                let frame = CloseFrame { code: e.code.close_code(), reason: close_reason(&e) };
+                let _ = tokio::time::timeout(CLOSE_GRACE, sink.send(Message::Close(Some(frame)))).await;
+                return "shutdown";
+            }
+            () = session.slot.ready() => match session.slot.take() {
+                Some(frame) => {
+                    let len = frame.bytes.len() as u64;
+                    match tokio::time::timeout(stall, sink.send(Message::Binary(frame.bytes))).await {
+                        Ok(Ok(())) => {
+                            session.sent.fetch_add(1, Relaxed);
+                            hub.telemetry.frames_sent.fetch_add(1, Relaxed);
+                            hub.telemetry.bytes_sent.fetch_add(len, Relaxed);
+                            continue;
+                        }
+                        Ok(Err(_)) => return "send failed",
+                        Err(_) => {
+                            hub.telemetry.sessions_stalled.fetch_add(1, Relaxed);
+                            return "stalled";
+                        }
+                    }
+                }
+                None => continue,
+            },
+        };
+        match tokio::time::timeout(stall, sink.send(msg)).await {
+            Ok(Ok(())) => {}
+            Ok(Err(_)) => return "send failed",
+            Err(_) => {
+                hub.telemetry.sessions_stalled.fetch_add(1, Relaxed);
+                return "stalled";
+            }
+        }
+    }
+}
+
+/// Validates and applies client messages until the client leaves or a fatal error.
+async fn read_loop(
+    mut stream: Stream,
+    hub: &Hub,
+    guard: &SessionGuard,
+    ctl: mpsc::Sender<Control>,
+    mut limiter: RateLimiter,
+) {
+    let session = &guard.session;
+    let mut errors = 0u32;
+    let mut window_start = Instant::now();
+    let fatal = loop {
+        let msg = match stream.next().await {
+            Some(Ok(m)) => m,
+            // A message over the WebSocket layer's own limit ends the stream with an
+            // error; the connection is unusable after it.
+            None | Some(Err(_)) => return,
+        };
+        match limiter.check() {
+            Rate::Ok => {}
+            Rate::Drop { warn } => {
+                hub.telemetry.client_error(ErrorCode::RateLimited, false);
+                if warn {
+                    let e = ProtocolError::new(
+                        ErrorCode::RateLimited,
+                        format!(
+                            "more than {} messages per second: messages are being dropped",
+                            hub.config.max_messages_per_s
+                        ),
+                    );
+                    let _ = ctl.try_send(Control::Text(error_json(&e, false)));
+                }
+                continue;
+            }
+            Rate::Flood => {
+                break ProtocolError::new(
+                    ErrorCode::RateLimited,
+                    format!(
+                        "message flood: over {} messages per second",
+                        2.0 * hub.config.max_messages_per_s
+                    ),
+                );
+            }
+        }
+        let result = match msg {
+            Message::Text(t) if t.len() > hub.config.max_message_bytes => {
+                break too_large(t.len(), hub.config.max_message_bytes)
+            }
+            Message::Text(t) => handle_text(&t, hub, session),
+            Message::Binary(b) => break binary_error(b.len()),
+            // Pings are answered by the WebSocket layer; a close is answered there too,
+            // and the stream then ends.
+            Message::Ping(_) | Message::Pong(_) | Message::Close(_) => Ok(None),
+        };
+        match result {
+            Ok(Some(reply)) => {
+                let _ = ctl.try_send(Control::Text(reply));
+            }
+            Ok(None) => {}
+            Err(e) => {
+                hub.telemetry.client_error(e.code, false);
+                if window_start.elapsed() > ERROR_WINDOW {
+                    window_start = Instant::now();
+                    errors = 0;
+                }
+                errors += 1;
+                if errors > MAX_ERRORS_PER_WINDOW {
+                    break ProtocolError::new(
+                        ErrorCode::TooManyErrors,
+                        format!(
+                            "more than {MAX_ERRORS_PER_WINDOW} invalid messages in {} s; last: {e}",
+                            ERROR_WINDOW.as_secs()
+                        ),
+                    );
+                }
+                let _ = ctl.try_send(Control::Text(error_json(&e, false)));
+            }
+        }
+    };
+    tracing::info!(session = session.id, error = %fatal, "closing session");
+    // The writer sends the error and the close frame; keep reading so the client's
+    // close reply is consumed (the caller bounds how long).
+    if ctl.send(Control::Close(fatal)).await.is_ok() {
+        while let Some(Ok(_)) = stream.next().await {}
+    }
+}
+
+/// Applies one text message; `Ok(Some(json))` is a reply to send.
+fn handle_text(
+    text: &str,
+    hub: &Hub,
+    session: &SessionShared,
+) -> Result<Option<String>, ProtocolError> {
+    match parse_client_message(text)? {
+        ClientMessage::Pose(p) => {
+            let spec = session.view().spec;
+            let poses = check_pose(&spec, &p)?;
+            session.set_poses(p.seq, poses);
+            Ok(None)
+        }
+        ClientMessage::Configure(c) => {
+            let spec = session.view().spec;
+            let new = spec.configure(&c, &hub.config.spec_limits())?;
+            hub.reconfigure(session, new)?;
+            tracing::info!(session = session.id, layout = layout_name(new.layout), width = new.width, height = new.height, quality = new.quality, "session reconfigured");
+            Ok(Some(welcome(hub, session)))
+        }
+        ClientMessage::Hello(h) => Err(ProtocolError::new(
+            ErrorCode::InvalidMessage,
+            format!("hello (version {}) after the session started: send {{\"type\":\"configure\", ...}} to change it", clip(&h.version.to_string())),
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rate_limiter_warns_then_closes() {
+        let mut r = RateLimiter::new(10.0);
+        let mut kinds = Vec::new();
+        for _ in 0..25 {
+            kinds.push(match r.check() {
+                Rate::Ok => 'o',
+                Rate::Drop { warn: true } => 'W',
+                Rate::Drop { warn: false } => 'd',
+                Rate::Flood => 'F',
+            });
+        }
+        let s: String = kinds.into_iter().collect();
+        assert!(s.starts_with("oooooooooo"), "{s}");
+        assert_eq!(s.matches('W').count(), 1, "{s}");
+        assert!(s.ends_with('F'), "{s}");
+    }
+
+    #[test]
+    fn close_reasons_fit_a_control_frame() {
+        let e = ProtocolError::new(ErrorCode::InvalidHello, "é".repeat(200));
+        assert!(close_reason(&e).len() <= 123);
+        assert!(
+            constant_time_eq(b"abc", b"abc")
+                && !constant_time_eq(b"abc", b"abd")
+                && !constant_time_eq(b"abc", b"ab")
+        );
+    }
+}

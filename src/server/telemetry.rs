@@ -1,0 +1,341 @@
+//! Server counters and their Prometheus text export (`/metrics`).
+//!
+//! Counters are atomics bumped by the render thread, the encoders and the session tasks;
+//! nothing here blocks anyone for longer than a map insert.
+
+use super::protocol::ErrorCode;
+use crate::render::FrameStats;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::sync::atomic::{AtomicI64, AtomicU64, Ordering::Relaxed};
+use std::sync::Mutex;
+
+/// A Prometheus summary without quantiles: sum of seconds and count.
+#[derive(Default)]
+pub(crate) struct Summary {
+    sum_ns: AtomicU64,
+    count: AtomicU64,
+}
+
+impl Summary {
+    pub(crate) fn observe_ms(&self, ms: f64) {
+        self.sum_ns.fetch_add((ms.max(0.0) * 1e6) as u64, Relaxed);
+        self.count.fetch_add(1, Relaxed);
+    }
+
+    fn write(&self, out: &mut String, name: &str, labels: &str) {
+        let lbl = if labels.is_empty() {
+            String::new()
+        } else {
+            format!("{{{labels}}}")
+        };
+        let _ = writeln!(
+            out,
+            "{name}_sum{lbl} {}",
+            self.sum_ns.load(Relaxed) as f64 * 1e-9
+        );
+        let _ = writeln!(out, "{name}_count{lbl} {}", self.count.load(Relaxed));
+    }
+}
+
+/// Why a frame did not reach a client.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum DropReason {
+    /// A newer frame replaced it before the client's socket took it.
+    ClientSlow,
+    /// The session's previous frame was still being encoded.
+    EncoderBusy,
+}
+
+/// Every counter of the server.
+#[derive(Default)]
+pub(crate) struct Telemetry {
+    pub(crate) frames: AtomicU64,
+    pub(crate) views_rendered: AtomicU64,
+    pub(crate) render_calls: AtomicU64,
+    pub(crate) render_errors: AtomicU64,
+    pub(crate) frame_seconds: Summary,
+    pub(crate) render_seconds: Summary,
+    pub(crate) encode_seconds: Summary,
+    stage_gpu: Mutex<BTreeMap<String, (f64, u64)>>,
+    rays: [AtomicU64; 4],
+    pub(crate) frames_encoded: AtomicU64,
+    pub(crate) frames_sent: AtomicU64,
+    pub(crate) bytes_sent: AtomicU64,
+    dropped_slow: AtomicU64,
+    dropped_busy: AtomicU64,
+    pub(crate) sessions_total: AtomicU64,
+    pub(crate) sessions_stalled: AtomicU64,
+    pub(crate) connections: AtomicI64,
+    pub(crate) connections_refused: AtomicU64,
+    pub(crate) slot_bytes: AtomicI64,
+    pub(crate) renderers: AtomicI64,
+    errors: Mutex<BTreeMap<(ErrorCode, bool), u64>>,
+}
+
+const RAY_STAGES: [&str; 4] = [
+    "shared_grid",
+    "shadow_frustum",
+    "froxel_lighting",
+    "surface",
+];
+
+impl Telemetry {
+    /// Adds one render call's counters and GPU stage times.
+    pub(crate) fn record_render(&self, stats: &FrameStats) {
+        self.render_calls.fetch_add(1, Relaxed);
+        self.views_rendered.fetch_add(stats.viewers as u64, Relaxed);
+        self.render_seconds.observe_ms(stats.frame_ms);
+        let r = &stats.rays;
+        for (slot, n) in self.rays.iter().zip([
+            r.shared_grid,
+            r.shadow_frustum,
+            r.froxel_lighting,
+            r.surface,
+        ]) {
+            slot.fetch_add(n, Relaxed);
+        }
+        let mut stages = self.stage_gpu.lock().unwrap_or_else(|e| e.into_inner());
+        for s in &stats.stage_gpu_ms {
+            let e = stages.entry(s.stage.clone()).or_default();
+            e.0 += s.gpu_ms * 1e-3;
+            e.1 += 1;
+        }
+    }
+
+    pub(crate) fn dropped(&self, reason: DropReason) {
+        match reason {
+            DropReason::ClientSlow => self.dropped_slow.fetch_add(1, Relaxed),
+            DropReason::EncoderBusy => self.dropped_busy.fetch_add(1, Relaxed),
+        };
+    }
+
+    /// Frames dropped for any reason.
+    pub(crate) fn frames_dropped(&self) -> u64 {
+        self.dropped_slow.load(Relaxed) + self.dropped_busy.load(Relaxed)
+    }
+
+    pub(crate) fn client_error(&self, code: ErrorCode, fatal: bool) {
+        *self
+            .errors
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .entry((code, fatal))
+            .or_default() += 1;
+    }
+
+    /// The Prometheus text exposition of every counter; `sessions` and `views` are the
+    /// live gauges from the session table.
+    pub(crate) fn export(&self, sessions: usize, views: usize) -> String {
+        let mut o = String::with_capacity(4096);
+        let metric =
+            |o: &mut String, name: &str, kind: &str, help: &str, samples: &[(&str, f64)]| {
+                let _ = writeln!(o, "# HELP {name} {help}\n# TYPE {name} {kind}");
+                for (labels, v) in samples {
+                    if labels.is_empty() {
+                        let _ = writeln!(o, "{name} {v}");
+                    } else {
+                        let _ = writeln!(o, "{name}{{{labels}}} {v}");
+                    }
+                }
+            };
+        let n = |a: &AtomicU64| a.load(Relaxed) as f64;
+        metric(
+            &mut o,
+            "fogcast_sessions",
+            "gauge",
+            "Open viewer sessions.",
+            &[("", sessions as f64)],
+        );
+        metric(
+            &mut o,
+            "fogcast_viewers",
+            "gauge",
+            "Views rendered per frame (mono 1, stereo 2, split 2-4 per session).",
+            &[("", views as f64)],
+        );
+        metric(
+            &mut o,
+            "fogcast_connections",
+            "gauge",
+            "Open WebSocket connections, handshakes included.",
+            &[("", self.connections.load(Relaxed) as f64)],
+        );
+        metric(
+            &mut o,
+            "fogcast_connections_refused_total",
+            "counter",
+            "Connections refused at max_connections.",
+            &[("", n(&self.connections_refused))],
+        );
+        metric(
+            &mut o,
+            "fogcast_sessions_total",
+            "counter",
+            "Sessions opened.",
+            &[("", n(&self.sessions_total))],
+        );
+        metric(
+            &mut o,
+            "fogcast_sessions_stalled_total",
+            "counter",
+            "Sessions closed because one frame could not be sent within stall_timeout_s.",
+            &[("", n(&self.sessions_stalled))],
+        );
+        metric(
+            &mut o,
+            "fogcast_frames_total",
+            "counter",
+            "Render-loop frames with at least one view.",
+            &[("", n(&self.frames))],
+        );
+        metric(
+            &mut o,
+            "fogcast_views_rendered_total",
+            "counter",
+            "Views rendered.",
+            &[("", n(&self.views_rendered))],
+        );
+        metric(
+            &mut o,
+            "fogcast_render_calls_total",
+            "counter",
+            "Batched render calls (one per view size per frame).",
+            &[("", n(&self.render_calls))],
+        );
+        metric(
+            &mut o,
+            "fogcast_render_errors_total",
+            "counter",
+            "Render calls that failed.",
+            &[("", n(&self.render_errors))],
+        );
+        metric(
+            &mut o,
+            "fogcast_renderers",
+            "gauge",
+            "Renderers alive (one per view size in use, plus a few idle).",
+            &[("", self.renderers.load(Relaxed) as f64)],
+        );
+        let rays: Vec<(String, f64)> = RAY_STAGES
+            .iter()
+            .zip(&self.rays)
+            .map(|(s, a)| (format!("stage=\"{s}\""), n(a)))
+            .collect();
+        let rays: Vec<(&str, f64)> = rays.iter().map(|(l, v)| (l.as_str(), *v)).collect();
+        metric(
+            &mut o,
+            "fogcast_rays_traced_total",
+            "counter",
+            "Shadow rays traced, per stage.",
+            &rays,
+        );
+        metric(
+            &mut o,
+            "fogcast_frames_encoded_total",
+            "counter",
+            "Session frames JPEG-encoded.",
+            &[("", n(&self.frames_encoded))],
+        );
+        metric(
+            &mut o,
+            "fogcast_frames_sent_total",
+            "counter",
+            "Session frames written to a socket.",
+            &[("", n(&self.frames_sent))],
+        );
+        metric(
+            &mut o,
+            "fogcast_bytes_sent_total",
+            "counter",
+            "Frame bytes written to sockets (headers included).",
+            &[("", n(&self.bytes_sent))],
+        );
+        metric(
+            &mut o,
+            "fogcast_frames_dropped_total",
+            "counter",
+            "Session frames dropped: replaced by a newer one before a slow client took it, or skipped while the previous one was encoding.",
+            &[("reason=\"client_slow\"", n(&self.dropped_slow)), ("reason=\"encoder_busy\"", n(&self.dropped_busy))],
+        );
+        metric(
+            &mut o,
+            "fogcast_frame_slot_bytes",
+            "gauge",
+            "Encoded frames waiting in latest-frame slots, bytes.",
+            &[("", self.slot_bytes.load(Relaxed) as f64)],
+        );
+        metric(
+            &mut o,
+            "fogcast_resident_memory_bytes",
+            "gauge",
+            "Resident memory of the server process.",
+            &[("", resident_memory_bytes().unwrap_or(0) as f64)],
+        );
+        let errors: Vec<(String, f64)> = self
+            .errors
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .map(|((code, fatal), v)| {
+                (
+                    format!("code=\"{}\",fatal=\"{fatal}\"", code.as_str()),
+                    *v as f64,
+                )
+            })
+            .collect();
+        let errors: Vec<(&str, f64)> = errors.iter().map(|(l, v)| (l.as_str(), *v)).collect();
+        metric(
+            &mut o,
+            "fogcast_client_errors_total",
+            "counter",
+            "Client messages rejected, per error code.",
+            &errors,
+        );
+        for (name, help, s) in [
+            (
+                "fogcast_frame_seconds",
+                "Render-loop frame time (all render calls of a frame).",
+                &self.frame_seconds,
+            ),
+            (
+                "fogcast_render_seconds",
+                "Host time of one batched render call, upload to readback.",
+                &self.render_seconds,
+            ),
+            (
+                "fogcast_encode_seconds",
+                "Compose + JPEG encode time of one session frame.",
+                &self.encode_seconds,
+            ),
+        ] {
+            let _ = writeln!(o, "# HELP {name} {help}\n# TYPE {name} summary");
+            s.write(&mut o, name, "");
+        }
+        let _ = writeln!(o, "# HELP fogcast_stage_gpu_seconds GPU time per render stage (timestamp queries).\n# TYPE fogcast_stage_gpu_seconds summary");
+        for (stage, (sum, count)) in self
+            .stage_gpu
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+        {
+            let _ = writeln!(
+                o,
+                "fogcast_stage_gpu_seconds_sum{{stage=\"{stage}\"}} {sum}"
+            );
+            let _ = writeln!(
+                o,
+                "fogcast_stage_gpu_seconds_count{{stage=\"{stage}\"}} {count}"
+            );
+        }
+        o
+    }
+}
+
+/// Resident set size from `/proc/self/status` (Linux; `None` elsewhere).
+pub fn resident_memory_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
