@@ -8,6 +8,7 @@ mod composite;
 mod froxel_lighting;
 mod gbuffer;
 mod gpu_types;
+mod ray_query;
 mod scene_gpu;
 mod shadow_frustum;
 mod shared_grid;
@@ -15,6 +16,7 @@ mod stats;
 mod viewer_volumes;
 mod volume_integration;
 
+pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub use shared_grid::SharedShadowGrid;
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming};
 pub use viewer_volumes::{ViewerLayout, ViewerVolumes};
@@ -252,6 +254,24 @@ impl Renderer {
         Ok(Some((words, touched)))
     }
 
+    /// Reads every viewer's integrated froxel volume back as f32 `[r, g, b, transmittance]`
+    /// (for tests and tools: NaN or inf here is hidden by the RGBA8 clamp of the image).
+    /// Viewer `i`'s froxel `(x, y, slice)` is at `i·X·Y·slices + x + X·(y + Y·slice)` for
+    /// an `X × Y` froxel grid; empty before the first frame.
+    pub fn read_integrated_volume(&self) -> anyhow::Result<Vec<[f32; 4]>> {
+        let Some(v) = &self.volumes else {
+            return Ok(Vec::new());
+        };
+        let bytes = self.ctx.read_buffer(&v.integrated)?;
+        let froxels = v.count * v.froxels_per_view() as usize;
+        // `pack_rgba16` in common.wgsl: two u32 words, each the low half first.
+        Ok(bytes
+            .chunks_exact(8)
+            .take(froxels)
+            .map(|f| [0, 2, 4, 6].map(|k| f16_to_f32(u16::from_le_bytes([f[k], f[k + 1]]))))
+            .collect())
+    }
+
     fn ensure_volumes(&mut self, count: usize, width: u32, height: u32) -> anyhow::Result<()> {
         let s = &self.settings;
         let layout = ViewerLayout {
@@ -467,5 +487,46 @@ impl Renderer {
         });
         self.frame_index = self.frame_index.wrapping_add(1);
         Ok(FrameOutput { width, height, images, stats })
+    }
+}
+
+/// IEEE 754 binary16 bits to f32, exactly (subnormals, inf and NaN included).
+fn f16_to_f32(h: u16) -> f32 {
+    let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
+    let exponent = u32::from((h >> 10) & 0x1f);
+    let mantissa = u32::from(h & 0x3ff);
+    match exponent {
+        0 => sign * mantissa as f32 * 2f32.powi(-24),
+        0x1f => f32::from_bits((u32::from(h & 0x8000) << 16) | 0x7f80_0000 | (mantissa << 13)),
+        _ => f32::from_bits(
+            (u32::from(h & 0x8000) << 16) | ((exponent + 112) << 23) | (mantissa << 13),
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::f16_to_f32;
+
+    #[test]
+    fn f16_decodes_known_values() {
+        let cases: [(u16, f32); 10] = [
+            (0x0000, 0.0),
+            (0x3c00, 1.0),
+            (0xc000, -2.0),
+            (0x3555, 0.333_251_95),
+            (0x7bff, 65504.0),
+            (0xfbff, -65504.0),
+            (0x0400, 6.103_515_6e-5),
+            (0x0001, 5.960_464_5e-8),
+            (0x83ff, -6.097_555e-5),
+            (0x7c00, f32::INFINITY),
+        ];
+        for (bits, want) in cases {
+            assert_eq!(f16_to_f32(bits), want, "{bits:#06x}");
+        }
+        assert_eq!(f16_to_f32(0xfc00), f32::NEG_INFINITY);
+        assert!(f16_to_f32(0x7e00).is_nan() && f16_to_f32(0xfe01).is_nan());
+        assert!(f16_to_f32(0x8000).is_sign_negative());
     }
 }

@@ -116,7 +116,10 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
                     base_dir.join(path)
                 };
                 if !full.is_file() {
-                    let reason = format!("no such file: looked for {} (relative paths start at the scene file's folder)", full.display());
+                    let reason = format!(
+                        "no such file: looked for {} (relative paths start at the scene file's folder)",
+                        full.display()
+                    );
                     return Err(invalid(f("path"), path, &reason));
                 }
                 let (pos, idx) = gltf_load::load_triangles(&full)?;

@@ -1,0 +1,314 @@
+//! Malformed scene files fail to load with a message that names the field at fault and
+//! the offending value; degenerate geometry is dropped rather than traced.
+
+use fogcast::scene::Scene;
+use std::path::{Path, PathBuf};
+
+/// A valid scene; each case replaces one line (or appends a table) to break it.
+const VALID: &str = r#"
+name = "errors"
+
+[camera]
+path = [[0.0, 1.5, 4.0], [0.0, 1.5, -4.0]]
+
+[[light]]
+kind = "spot"
+position = [0.0, 4.0, 0.0]
+direction = [0.0, -1.0, 0.0]
+intensity = 50.0
+inner_deg = 20.0
+outer_deg = 30.0
+
+[[mesh]]
+kind = "box"
+min = [-5.0, -0.25, -5.0]
+max = [5.0, 0.0, 5.0]
+
+[[medium]]
+kind = "box"
+min = [-4.0, 0.0, -4.0]
+max = [4.0, 3.0, 4.0]
+scattering = [0.1, 0.1, 0.1]
+absorption = 0.01
+g = 0.5
+"#;
+
+/// `VALID` with the one line that starts with `old` replaced by `new`.
+fn with_line(old: &str, new: &str) -> String {
+    let mut hits = 0;
+    let text: Vec<String> = VALID
+        .lines()
+        .map(|line| {
+            if line.starts_with(old) {
+                hits += 1;
+                new.to_string()
+            } else {
+                line.to_string()
+            }
+        })
+        .collect();
+    assert_eq!(hits, 1, "test setup: `{old}` must start exactly one line");
+    text.join("\n")
+}
+
+/// The load error of `text`; panics if it loads.
+fn load_error(text: &str) -> String {
+    match Scene::from_toml(text, Path::new("inline.toml")) {
+        Ok(_) => panic!("this scene must be rejected:\n{text}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+fn assert_mentions(message: &str, parts: &[&str]) {
+    println!("{message}\n");
+    for p in parts {
+        assert!(
+            message.contains(p),
+            "error message does not mention `{p}`:\n{message}"
+        );
+    }
+}
+
+#[test]
+fn the_base_scene_is_valid() {
+    let scene = Scene::from_toml(VALID, Path::new("inline.toml")).expect("VALID loads");
+    assert_eq!(
+        (scene.mesh.len(), scene.lights.len(), scene.media.len()),
+        (12, 1, 1)
+    );
+}
+
+#[test]
+fn negative_absorption() {
+    let msg = load_error(&with_line("absorption", "absorption = -0.5"));
+    assert_mentions(&msg, &["medium[0].absorption", "-0.5"]);
+}
+
+#[test]
+fn hg_g_of_one() {
+    let msg = load_error(&with_line("g = ", "g = 1.0"));
+    assert_mentions(&msg, &["medium[0].g", "1.0", "between -1 and 1"]);
+}
+
+#[test]
+fn nan_and_inf_written_in_toml() {
+    let cases = [
+        (
+            with_line("absorption", "absorption = nan"),
+            ["medium[0].absorption", "NaN"],
+        ),
+        (
+            with_line("scattering", "scattering = [0.1, -nan, 0.1]"),
+            ["medium[0].scattering", "NaN"],
+        ),
+        (
+            with_line("intensity", "intensity = inf"),
+            ["light[0].intensity", "inf"],
+        ),
+        (
+            with_line("position", "position = [0.0, -inf, 0.0]"),
+            ["light[0].position", "-inf"],
+        ),
+        (
+            with_line("path", "path = [[0.0, 1.5, 4.0], [nan, 1.5, -4.0]]"),
+            ["camera.path[1]", "NaN"],
+        ),
+        (
+            with_line("max = [4.0", "max = [4.0, +inf, 4.0]"),
+            ["medium[0].max", "inf"],
+        ),
+        (with_line("g = ", "g = nan"), ["medium[0].g", "NaN"]),
+    ];
+    for (text, parts) in cases {
+        assert_mentions(&load_error(&text), &parts);
+    }
+}
+
+#[test]
+fn missing_box_min() {
+    let medium_min = "min = [-4.0";
+    let msg = load_error(&with_line(medium_min, ""));
+    assert_mentions(&msg, &["medium[0].min", "missing"]);
+}
+
+#[test]
+fn unknown_fields_are_named() {
+    // A typo in a medium, an extra field on a box mesh, an unknown top-level table.
+    let msg = load_error(&with_line("scattering", "scatering = [0.1, 0.1, 0.1]"));
+    assert_mentions(&msg, &["unknown field", "scatering", "line"]);
+    let msg = load_error(&with_line(
+        "max = [5.0",
+        "max = [5.0, 0.0, 5.0]\nradius = 2.0",
+    ));
+    assert_mentions(&msg, &["unknown field", "radius"]);
+    let msg = load_error(&format!("{VALID}\n[renderer]\nexposure = 2.0\n"));
+    assert_mentions(&msg, &["unknown field", "renderer"]);
+}
+
+#[test]
+fn spot_inner_angle_wider_than_outer() {
+    let msg = load_error(&with_line("inner_deg", "inner_deg = 50.0"));
+    assert_mentions(&msg, &["light[0].inner_deg", "50.0", "outer_deg"]);
+}
+
+#[test]
+fn gltf_path_that_does_not_exist() {
+    let text = format!("{VALID}\n[[mesh]]\nkind = \"gltf\"\npath = \"meshes/no_such_model.glb\"\n");
+    let msg = load_error(&text);
+    assert_mentions(
+        &msg,
+        &[
+            "mesh[1].path",
+            "\"meshes/no_such_model.glb\"",
+            "no such file",
+        ],
+    );
+}
+
+#[test]
+fn empty_camera_path() {
+    let msg = load_error(&with_line("path", "path = []"));
+    assert_mentions(&msg, &["camera.path", "[]", "at least one point"]);
+}
+
+/// A scratch folder for glTF files, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(name: &str) -> TempDir {
+        let dir = std::env::temp_dir().join(format!(
+            "fogcast-scene-errors-{}-{name}",
+            std::process::id()
+        ));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        TempDir(dir)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = ((b[0] as u32) << 16) | ((b[1] as u32) << 8) | b[2] as u32;
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(ALPHABET[((n >> (18 - 6 * k)) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+/// A glTF with one non-indexed triangle-list mesh of `vertices`, its buffer embedded
+/// as base64. The accessor's min/max (required for POSITION) ignore non-finite values.
+fn write_gltf(dir: &Path, vertices: &[[f32; 3]]) -> PathBuf {
+    let bytes: Vec<u8> = vertices
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let finite = || vertices.iter().flatten().copied().filter(|x| x.is_finite());
+    let (lo, hi) = (
+        finite().fold(f32::MAX, f32::min),
+        finite().fold(f32::MIN, f32::max),
+    );
+    let json = format!(
+        r#"{{
+  "asset": {{ "version": "2.0" }},
+  "scene": 0,
+  "scenes": [{{ "nodes": [0] }}],
+  "nodes": [{{ "mesh": 0 }}],
+  "meshes": [{{ "primitives": [{{ "attributes": {{ "POSITION": 0 }} }}] }}],
+  "buffers": [{{ "byteLength": {len}, "uri": "data:application/octet-stream;base64,{data}" }}],
+  "bufferViews": [{{ "buffer": 0, "byteOffset": 0, "byteLength": {len} }}],
+  "accessors": [{{ "bufferView": 0, "componentType": 5126, "count": {count}, "type": "VEC3",
+                   "min": [{lo}, {lo}, {lo}], "max": [{hi}, {hi}, {hi}] }}]
+}}"#,
+        len = bytes.len(),
+        data = base64(&bytes),
+        count = vertices.len(),
+    );
+    let path = dir.join("mesh.gltf");
+    std::fs::write(&path, json).expect("write glTF");
+    path
+}
+
+/// `VALID` plus the glTF `mesh.gltf`, resolved against the scene file's folder.
+fn load_with_gltf(dir: &Path) -> Result<Scene, fogcast::scene::SceneError> {
+    let text = format!("{VALID}\n[[mesh]]\nkind = \"gltf\"\npath = \"mesh.gltf\"\n");
+    Scene::from_toml(&text, &dir.join("scene.toml"))
+}
+
+#[test]
+fn base64_matches_rfc_4648_vectors() {
+    for (input, want) in [
+        ("", ""),
+        ("f", "Zg=="),
+        ("fo", "Zm8="),
+        ("foo", "Zm9v"),
+        ("foobar", "Zm9vYmFy"),
+    ] {
+        assert_eq!(base64(input.as_bytes()), want);
+    }
+}
+
+#[test]
+fn gltf_with_a_nan_vertex() {
+    let dir = TempDir::new("nan");
+    write_gltf(
+        &dir.0,
+        &[[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0], [0.0, 1.0, 0.0]],
+    );
+    let err = load_with_gltf(&dir.0).expect_err("NaN vertex must be rejected");
+    assert_mentions(
+        &err.to_string(),
+        &["mesh.gltf", "vertex 1", "NaN", "finite"],
+    );
+}
+
+#[test]
+fn zero_area_triangles_are_dropped() {
+    let dir = TempDir::new("degenerate");
+    let tris: [[[f32; 3]; 3]; 4] = [
+        [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        // Collinear corners.
+        [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]],
+        // A repeated corner.
+        [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, 1.0]],
+        [[0.0, 0.0, 2.0], [0.0, 1.0, 2.0], [1.0, 0.0, 2.0]],
+    ];
+    let vertices: Vec<[f32; 3]> = tris.iter().flatten().copied().collect();
+    write_gltf(&dir.0, &vertices);
+    let scene = load_with_gltf(&dir.0).expect("loads");
+    // VALID's floor box is 12 triangles; the glTF adds its 2 with area.
+    assert_eq!(
+        scene.mesh.len(),
+        12 + 2,
+        "degenerate triangles must be dropped"
+    );
+    for i in 0..scene.mesh.len() {
+        let [a, b, c] = scene.mesh.triangle(i);
+        assert!(
+            (b - a).cross(c - a).length() > 0.0,
+            "triangle {i} has zero area"
+        );
+    }
+
+    // Built-in primitives: 12 triangles a box, 4 per facet a cylinder (side ×2, two caps).
+    let text = with_line("max = [5.0", "max = [5.0, 0.0, 5.0]\n[[mesh]]\nkind = \"cylinder\"\nbase = [0.0, 0.0, 0.0]\nradius = 0.5\nheight = 3.0\nsegments = 7");
+    let scene = Scene::from_toml(&text, Path::new("inline.toml")).expect("loads");
+    assert_eq!(scene.mesh.len(), 12 + 4 * 7);
+}
