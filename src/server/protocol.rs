@@ -334,32 +334,30 @@ impl ProtocolError {
     }
 }
 
-#[derive(Deserialize)]
-struct Envelope {
-    #[serde(rename = "type")]
-    ty: Option<serde_json::Value>,
-}
-
 const MESSAGE_TYPES: [&str; 3] = ["hello", "pose", "configure"];
 
 /// Parses one client text message, sorting failures into `bad_json`, `unknown_type` and
 /// `invalid_message` (the size limit is checked by the caller, before parsing).
 pub fn parse_client_message(text: &str) -> Result<ClientMessage, ProtocolError> {
-    let env: Envelope = serde_json::from_str(text).map_err(|e| {
-        if e.is_data() {
-            ProtocolError::new(
-                ErrorCode::InvalidMessage,
-                format!("expected a JSON object with a \"type\" field: {e}"),
-            )
-        } else {
-            ProtocolError::new(
-                ErrorCode::BadJson,
-                format!("not valid JSON ({e}); NaN and Infinity are not JSON numbers"),
-            )
-        }
+    // Syntax first (any JSON value), then shape: so "not JSON" and "not our message"
+    // get different codes.
+    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
+        ProtocolError::new(
+            ErrorCode::BadJson,
+            format!("not valid JSON ({e}); NaN and Infinity are not JSON numbers"),
+        )
     })?;
-    let ty = match env.ty {
-        Some(serde_json::Value::String(s)) => s,
+    let Some(object) = value.as_object() else {
+        return Err(ProtocolError::new(
+            ErrorCode::InvalidMessage,
+            format!(
+                "expected a JSON object with a \"type\" field, got {}",
+                clip(&value.to_string())
+            ),
+        ));
+    };
+    let ty = match object.get("type") {
+        Some(serde_json::Value::String(s)) => s.clone(),
         Some(other) => {
             return Err(ProtocolError::new(
                 ErrorCode::InvalidMessage,
@@ -385,7 +383,7 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, ProtocolError> 
             ),
         ));
     }
-    serde_json::from_str(text).map_err(|e| {
+    serde_json::from_value(value).map_err(|e| {
         ProtocolError::new(
             ErrorCode::InvalidMessage,
             format!("invalid {ty} message: {e}"),
@@ -477,7 +475,7 @@ impl SessionSpec {
             (Layout::Stereo, _) | (Layout::Split, 2) => (2, 1),
             _ => (2, 2),
         };
-        if width % cols != 0 || height % rows != 0 {
+        if !width.is_multiple_of(cols) || !height.is_multiple_of(rows) {
             return bad(format!("resolution {width}x{height} does not split into {cols}x{rows} equal tiles: use a width divisible by {cols} and a height divisible by {rows}"));
         }
         let (view_width, view_height) = (width / cols, height / rows);

@@ -3,7 +3,7 @@
 //! any end — close, error, stall, shutdown, a dropped TCP connection mid-handshake or
 //! mid-frame — drops the session guard and frees everything the session held.
 
-use super::hub::{layout_name, ConnectionGuard, Hub, SessionGuard, SessionShared};
+use super::hub::{layout_name, ConnectionGuard, Hub, SessionShared};
 use super::protocol::{
     check_pose, clip, parse_client_message, CheckedPose, ClientMessage, ErrorCode, ErrorMessage,
     Hello, Limits, ProtocolError, ServerMessage, SessionSpec, Welcome, FOV_RANGE_DEG,
@@ -176,20 +176,23 @@ pub(crate) async fn run(
         return;
     }
     let (ctl_tx, ctl_rx) = mpsc::channel(CONTROL_QUEUE);
-    let mut writer = std::pin::pin!(write_loop(sink, &hub, &guard, ctl_rx, shutdown));
-    let mut reader = std::pin::pin!(read_loop(stream, &hub, &guard, ctl_tx, limiter));
+    let session = guard.session.clone();
+    let mut writer = std::pin::pin!(write_loop(sink, &hub, &session, ctl_rx, shutdown));
+    let mut reader = std::pin::pin!(read_loop(stream, &hub, &session, ctl_tx, limiter));
     let end = tokio::select! {
-        end = &mut writer => {
-            // After a close frame went out, let the reader take the client's reply.
-            let _ = tokio::time::timeout(CLOSE_GRACE, &mut reader).await;
-            end
-        }
+        end = &mut writer => end,
         () = &mut reader => "client gone",
     };
+    // The session's views stop being rendered now, not after the close handshake.
+    drop(guard);
+    if !matches!(end, "client gone" | "send failed" | "stalled") {
+        // After a close frame went out, let the reader take the client's reply.
+        let _ = tokio::time::timeout(CLOSE_GRACE, &mut reader).await;
+    }
     tracing::info!(
         session = id,
-        sent = guard.session.sent.load(Relaxed),
-        dropped = guard.session.dropped.load(Relaxed),
+        sent = session.sent.load(Relaxed),
+        dropped = session.dropped.load(Relaxed),
         end,
         "session closed"
     );
@@ -317,11 +320,10 @@ fn welcome(hub: &Hub, session: &SessionShared) -> String {
 async fn write_loop(
     mut sink: Sink,
     hub: &Hub,
-    guard: &SessionGuard,
+    session: &SessionShared,
     mut ctl: mpsc::Receiver<Control>,
     mut shutdown: watch::Receiver<bool>,
 ) -> &'static str {
-    let session = &guard.session;
     let stall = Duration::from_secs_f64(hub.config.stall_timeout_s);
     loop {
         let msg = tokio::select! {
@@ -381,11 +383,10 @@ async fn write_loop(
 async fn read_loop(
     mut stream: Stream,
     hub: &Hub,
-    guard: &SessionGuard,
+    session: &SessionShared,
     ctl: mpsc::Sender<Control>,
     mut limiter: RateLimiter,
 ) {
-    let session = &guard.session;
     let mut errors = 0u32;
     let mut window_start = Instant::now();
     let fatal = loop {

@@ -134,6 +134,8 @@ pub async fn expect_fatal(ws: &mut Ws) -> (ErrorMessage, u16, String) {
                 }
             }
             Message::Close(Some(c)) => {
+                // Sends the close reply tungstenite queued, completing the handshake.
+                let _ = ws.flush().await;
                 let e = error.expect("an error message before the close frame");
                 assert!(e.fatal, "the error before a close is marked fatal: {e:?}");
                 return (e, u16::from(c.code), c.reason.to_string());
@@ -242,8 +244,13 @@ pub struct Viewer {
 
 impl Viewer {
     pub async fn start(addr: SocketAddr, width: u32, height: u32) -> Viewer {
+        Viewer::start_with(addr, hello(width, height)).await
+    }
+
+    /// As [`Viewer::start`] with a hello of the caller's (a token, say).
+    pub async fn start_with(addr: SocketAddr, hello: serde_json::Value) -> Viewer {
         let mut ws = connect(addr).await;
-        let w = welcome(&mut ws, hello(width, height)).await;
+        let w = welcome(&mut ws, hello).await;
         let pose = w.poses[0];
         let frames = Arc::new(AtomicU64::new(0));
         let closed = Arc::new(AtomicBool::new(false));

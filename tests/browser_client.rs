@@ -1,0 +1,309 @@
+//! The browser client in real headless Chromium (Debian's `chromium`, installed by
+//! `make deps`): it connects, shows frames, flies the camera on synthetic key presses,
+//! and reconnects after the server goes away and comes back.
+//!
+//! Chromium is driven over the DevTools protocol on a loopback WebSocket.
+
+mod server_support;
+
+use futures_util::{SinkExt as _, StreamExt as _};
+use serde_json::{json, Value};
+use server_support::*;
+use std::io::BufRead as _;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+use tokio_tungstenite::tungstenite::Message;
+
+/// The Chromium process and its profile folder, both removed on drop.
+struct Browser {
+    child: Child,
+    profile: PathBuf,
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.profile);
+    }
+}
+
+fn chromium_path() -> PathBuf {
+    let path = std::env::var_os("FOGCAST_CHROMIUM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    assert!(
+        path.exists(),
+        "{} not found: run `make deps` (installs Debian's chromium), or set FOGCAST_CHROMIUM",
+        path.display()
+    );
+    path
+}
+
+/// Starts headless Chromium with a fresh profile; returns it and its DevTools URL.
+fn launch() -> (Browser, String) {
+    let profile = std::env::temp_dir().join(format!("fogcast-chromium-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&profile);
+    let mut child = Command::new(chromium_path())
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-extensions",
+            "--remote-debugging-address=127.0.0.1",
+            "--remote-debugging-port=0",
+            "--window-size=800,600",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("about:blank")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("chromium starts");
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    // Reads Chromium's stderr to the end (so it never blocks on a full pipe).
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if let Some(url) = line.strip_prefix("DevTools listening on ") {
+                let _ = tx.send(url.trim().to_string());
+            }
+        }
+    });
+    let browser = Browser { child, profile };
+    let url = rx
+        .recv_timeout(Duration::from_secs(60))
+        .expect("Chromium prints its DevTools address");
+    assert!(
+        url.starts_with("ws://127.0.0.1:"),
+        "DevTools on loopback: {url}"
+    );
+    (browser, url)
+}
+
+/// A minimal DevTools protocol client: one page session over the browser connection.
+struct Cdp {
+    ws: Ws,
+    next_id: u64,
+    session: Option<String>,
+}
+
+impl Cdp {
+    async fn call(&mut self, method: &str, params: Value) -> Value {
+        self.next_id += 1;
+        let id = self.next_id;
+        let mut msg = json!({"id": id, "method": method, "params": params});
+        if let Some(s) = &self.session {
+            msg["sessionId"] = s.clone().into();
+        }
+        self.ws.send(Message::text(msg.to_string())).await.unwrap();
+        loop {
+            let m = tokio::time::timeout(PATIENCE, self.ws.next())
+                .await
+                .expect("DevTools answers")
+                .expect("open")
+                .expect("ok");
+            let Message::Text(t) = m else { continue };
+            let v: Value = serde_json::from_str(&t).unwrap();
+            if v["id"].as_u64() == Some(id) {
+                assert!(v.get("error").is_none(), "{method} failed: {v}");
+                return v["result"].clone();
+            }
+        }
+    }
+
+    async fn eval(&mut self, expression: &str) -> Value {
+        let r = self
+            .call(
+                "Runtime.evaluate",
+                json!({"expression": expression, "returnByValue": true, "awaitPromise": true}),
+            )
+            .await;
+        assert!(r.get("exceptionDetails").is_none(), "{expression}: {r}");
+        r["result"]["value"].clone()
+    }
+
+    async fn stats(&mut self) -> Value {
+        self.eval("window.fogcast ? window.fogcast.stats() : null")
+            .await
+    }
+
+    /// Polls the client's stats until `pred` holds.
+    async fn wait_stats(&mut self, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+        for _ in 0..600 {
+            let s = self.stats().await;
+            if !s.is_null() && pred(&s) {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        panic!(
+            "the page never reached: {what} (stats: {})",
+            self.stats().await
+        );
+    }
+
+    async fn key(&mut self, kind: &str, key: &str, code: &str, vk: u32) {
+        self.call("Input.dispatchKeyEvent", json!({"type": kind, "key": key, "code": code, "windowsVirtualKeyCode": vk, "nativeVirtualKeyCode": vk})).await;
+    }
+}
+
+fn grid_diff(a: &Value, b: &Value) -> f64 {
+    let (a, b) = (a["grid"].as_array().unwrap(), b["grid"].as_array().unwrap());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x.as_f64().unwrap() - y.as_f64().unwrap()).abs())
+        .sum::<f64>()
+        / a.len() as f64
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn chromium_shows_frames_and_flies_the_camera() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    let (_browser, devtools) = launch();
+    let (ws, _) = tokio_tungstenite::connect_async(&devtools)
+        .await
+        .expect("DevTools connects");
+    let mut cdp = Cdp {
+        ws,
+        next_id: 0,
+        session: None,
+    };
+    let target = cdp
+        .call("Target.createTarget", json!({"url": "about:blank"}))
+        .await;
+    let attached = cdp
+        .call(
+            "Target.attachToTarget",
+            json!({"targetId": target["targetId"], "flatten": true}),
+        )
+        .await;
+    cdp.session = Some(attached["sessionId"].as_str().unwrap().to_string());
+    cdp.call("Page.enable", json!({})).await;
+    cdp.call(
+        "Page.navigate",
+        json!({"url": format!("http://{addr}/?w=160&h=90&quality=90")}),
+    )
+    .await;
+
+    let s = cdp
+        .wait_stats("3 frames shown", |s| s["shown"].as_u64() >= Some(3))
+        .await;
+    assert_eq!(
+        (s["width"].as_u64(), s["height"].as_u64()),
+        (Some(160), Some(90)),
+        "{s}"
+    );
+    assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
+    let before = cdp.eval("window.fogcast.canvasStats()").await;
+    let cam_before = s["camera"].clone();
+    assert!(
+        before["mean"].as_f64().unwrap() > 10.0,
+        "the first frames are black: {before}"
+    );
+
+    // Fly: hold W (forward) and Left (turn) for a second.
+    cdp.eval("document.getElementById('view').focus()").await;
+    cdp.key("rawKeyDown", "w", "KeyW", 87).await;
+    cdp.key("rawKeyDown", "ArrowLeft", "ArrowLeft", 37).await;
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    cdp.key("keyUp", "w", "KeyW", 87).await;
+    cdp.key("keyUp", "ArrowLeft", "ArrowLeft", 37).await;
+    let moved = cdp.stats().await;
+    assert_ne!(moved["camera"], cam_before, "key presses moved the camera");
+    // Wait for a frame rendered with the final pose.
+    let seq = moved["seq"].as_u64().unwrap();
+    let shown = moved["shown"].as_u64().unwrap();
+    let after_stats = cdp
+        .wait_stats("a frame of the new pose", |s| {
+            s["frameSeq"].as_u64() >= Some(seq) && s["shown"].as_u64() >= Some(shown + 2)
+        })
+        .await;
+    let after = cdp.eval("window.fogcast.canvasStats()").await;
+    let diff = grid_diff(&before, &after);
+    eprintln!(
+        "browser: mean luma {:.1} -> {:.1}, 8x8 grid diff {diff:.2}, latency {:?} ms, fps {}",
+        before["mean"].as_f64().unwrap(),
+        after["mean"].as_f64().unwrap(),
+        after_stats["latencyMs"],
+        after_stats["fps"]
+    );
+    assert!(
+        after["mean"].as_f64().unwrap() > 10.0,
+        "the image after moving is black: {after}"
+    );
+    assert!(
+        diff > 2.0,
+        "the displayed image did not change after moving (grid diff {diff:.2})"
+    );
+    assert!(
+        after_stats["latencyMs"].as_f64().is_some(),
+        "pose-to-frame latency is measured"
+    );
+
+    let shot = cdp
+        .call("Page.captureScreenshot", json!({"format": "png"}))
+        .await;
+    let png = base64_decode(shot["data"].as_str().unwrap());
+    assert!(png.starts_with(b"\x89PNG"), "a PNG screenshot");
+    let out = std::env::var_os("FOGCAST_TEST_OUT")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_TARGET_TMPDIR")));
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("browser_client.png"), &png).unwrap();
+
+    // The server goes away and comes back on the same port: the page reconnects.
+    let config = fogcast::server::ServerConfig {
+        port: addr.port(),
+        ..test_config()
+    };
+    server.shutdown().await.unwrap();
+    cdp.wait_stats("disconnected", |s| s["connected"] == false)
+        .await;
+    let server = start(config).await;
+    let shown = cdp.stats().await["shown"].as_u64().unwrap();
+    cdp.wait_stats("reconnected and streaming", |s| {
+        s["connected"] == true && s["shown"].as_u64() >= Some(shown + 2)
+    })
+    .await;
+    server.shutdown().await.unwrap();
+}
+
+/// Standard base64 (the screenshot's encoding).
+fn base64_decode(s: &str) -> Vec<u8> {
+    let val = |c: u8| match c {
+        b'A'..=b'Z' => c - b'A',
+        b'a'..=b'z' => c - b'a' + 26,
+        b'0'..=b'9' => c - b'0' + 52,
+        b'+' => 62,
+        b'/' => 63,
+        _ => panic!("not base64: {c}"),
+    };
+    let bytes: Vec<u8> = s
+        .bytes()
+        .filter(|c| *c != b'=' && !c.is_ascii_whitespace())
+        .map(val)
+        .collect();
+    bytes
+        .chunks(4)
+        .flat_map(|c| {
+            let n = c
+                .iter()
+                .enumerate()
+                .fold(0u32, |acc, (i, v)| acc | (*v as u32) << (18 - 6 * i));
+            let out = [(n >> 16) as u8, (n >> 8) as u8, n as u8];
+            out.into_iter().take(c.len() - 1)
+        })
+        .collect()
+}
