@@ -1,16 +1,31 @@
-# fogcast: `make run` renders, `make test` runs every test (installing lavapipe first).
+# fogcast: `make run` serves http://127.0.0.1:8080, `make render` renders PNGs offline,
+# `make test` runs every test (installing lavapipe and Chromium first).
 CARGO ?= cargo
 SCENE ?= colonnade
+ADDR ?= 127.0.0.1
+PORT ?= 8080
+# Extra `fogcast serve` flags, e.g. SERVE_ARGS="--config fogcast.toml --max-views 8".
+SERVE_ARGS ?=
 
-.PHONY: deps build run test lint fmt clean
+.PHONY: deps deps-runtime build run serve render test lint fmt clean
 
+# Everything: the Vulkan driver (lavapipe) and Chromium for the browser test.
 deps:
-	@bash scripts/deps.sh
+	@bash scripts/deps.sh all
+
+# What running the server needs: the Vulkan driver only.
+deps-runtime:
+	@bash scripts/deps.sh runtime
 
 build:
 	$(CARGO) build --release
 
-run: deps build
+run: deps-runtime build serve
+
+serve:
+	./target/release/fogcast serve --scene $(SCENE) --addr $(ADDR) --port $(PORT) $(SERVE_ARGS)
+
+render: deps-runtime build
 	./target/release/fogcast render --scene $(SCENE) --viewers 4 --width 640 --height 360 --out out/$(SCENE)
 
 test: deps
