@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what fogcast needs on a machine without a GPU.
-#   deps.sh runtime   Mesa's software Vulkan driver (lavapipe): enough to render and serve.
+#   deps.sh runtime   Mesa's software Vulkan driver (lavapipe) and DejaVu Sans (plot
+#                     labels): enough to render, evaluate and serve.
 #   deps.sh [all]     runtime + Debian's Chromium and ChromeDriver for the browser test.
 # Mesa 25 from bookworm-backports traces shadow rays ~3.5x faster than bookworm's
 # Mesa 22 (DESIGN.md §8).
@@ -79,7 +80,25 @@ install_chromium() {
   echo "deps: installed $(dpkg-query -W -f='${Package} ${Version}' chromium)"
 }
 
+# Plot labels (fogcast eval/bench) are drawn with DejaVu Sans loaded at run time.
+install_fonts() {
+  if [ -e /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
+    echo "deps: DejaVu Sans is present"
+    return 0
+  fi
+  if [ "$(id -u)" != 0 ]; then
+    echo "deps: DejaVu Sans is missing (plot labels). Install it as root:" >&2
+    echo "  sudo apt-get update && sudo apt-get install -y fonts-dejavu-core" >&2
+    return 1
+  fi
+  export DEBIAN_FRONTEND=noninteractive
+  echo "deps: installing fonts-dejavu-core"
+  apt_update
+  apt-get install -y -qq fonts-dejavu-core >/dev/null
+}
+
 install_vulkan
+install_fonts
 if [ "$what" = all ]; then
   install_chromium
 fi

@@ -18,6 +18,10 @@ struct Frame {
     max_ray_m: f32,
     frustum_slices: u32,
     slices: u32,
+    depth_curve: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // Frame.flags
@@ -101,15 +105,20 @@ fn view_ray(v: View, pix: vec2f) -> vec3f {
     return normalize(v.forward + v.right * (ndc.x * v.tan_x) + v.up * (ndc.y * v.tan_y));
 }
 
-// View depth of the boundary at (fractional) slice coordinate `s`: exponential
-// distribution between near and far (Hillaire 2015 / Wronski 2014).
+// View depth of the boundary at (fractional) slice coordinate `s`: an exponential
+// distribution between near and far, z = near + (far − near)·(e^{k·s/N} − 1)/(e^k − 1).
+// k = depth_curve; k = ln(far/near) is close to Wronski's pure near·(far/near)^{s/N},
+// smaller k moves slices away from the eye (see `Settings::depth_curve`).
 fn slice_depth(v: View, s: f32) -> f32 {
-    return v.near * pow(v.far / v.near, s / f32(frame.slices));
+    let k = frame.depth_curve;
+    return v.near + (v.far - v.near) * (exp(k * s / f32(frame.slices)) - 1.0) / (exp(k) - 1.0);
 }
 
-// Fractional slice coordinate of view depth `z`.
+// Fractional slice coordinate of view depth `z` (inverse of `slice_depth`).
 fn depth_to_slice(v: View, z: f32) -> f32 {
-    return f32(frame.slices) * log(max(z, v.near) / v.near) / log(v.far / v.near);
+    let k = frame.depth_curve;
+    let u = max(z - v.near, 0.0) / (v.far - v.near);
+    return f32(frame.slices) * log(1.0 + u * (exp(k) - 1.0)) / k;
 }
 
 // Direction from `p` towards light `l` (xyz) and the shadow-ray length (w).

@@ -26,6 +26,8 @@ pub struct EvalConfig {
     pub height: u32,
     /// Shared grid voxel sizes to sweep, metres.
     pub voxel_sizes_m: Vec<f32>,
+    /// Extra depth-slice curvatures to evaluate (reference and default shared each).
+    pub depth_curves: Vec<f32>,
     /// Frames per variant: cameras walk into the evaluated pose over these frames, so
     /// parity updates and stale voxels are measured as they are in motion.
     pub frames: u32,
@@ -163,7 +165,12 @@ impl Runner {
 }
 
 fn variant_name(s: &Settings) -> String {
-    match s.mode {
+    let curve = if s.depth_curve != Settings::default().depth_curve {
+        format!(" depth-curve {}", s.depth_curve)
+    } else {
+        String::new()
+    };
+    let name = match s.mode {
         Mode::Reference => "reference".into(),
         Mode::Shared => format!(
             "shared {}m {}{}{}",
@@ -176,7 +183,8 @@ fn variant_name(s: &Settings) -> String {
                 " no-frustum"
             }
         ),
-    }
+    };
+    name + &curve
 }
 
 /// Runs the whole evaluation and writes `eval.md`, `eval.csv`, `eval.json` and plots.
@@ -197,10 +205,11 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
         ..TruthSettings::default()
     };
     let truth_started = std::time::Instant::now();
-    let (truth, truth_counts) = render_truth(&scene, &bvh, &cams, w, h, cfg.time_s, ts, &|_, _| {});
+    let (truth, truth_counts) =
+        render_truth(&scene, &bvh, &cams, (w, h), cfg.time_s, ts, &|_, _| {});
     let truth_ms = truth_started.elapsed().as_secs_f64() * 1e3;
     progress("truth (CPU): without media");
-    let (truth_bare, _) = render_truth(&bare, &bvh, &cams, w, h, cfg.time_s, ts, &|_, _| {});
+    let (truth_bare, _) = render_truth(&bare, &bvh, &cams, (w, h), cfg.time_s, ts, &|_, _| {});
     let truth_frames = Frames {
         images: &truth,
         no_media: &truth_bare,
@@ -248,6 +257,20 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
                     });
                 }
             }
+        }
+    }
+    for &depth_curve in &cfg.depth_curves {
+        if depth_curve != base.depth_curve {
+            variants.push(Settings {
+                mode: Mode::Reference,
+                depth_curve,
+                ..base
+            });
+            variants.push(Settings {
+                mode: Mode::Shared,
+                depth_curve,
+                ..base
+            });
         }
     }
     let mut reference_images: Option<Vec<Vec<u8>>> = None;

@@ -56,6 +56,9 @@ struct EvalArgs {
     /// Scene time of the evaluated frame, seconds.
     #[arg(long, default_value_t = 2.0)]
     time: f32,
+    /// Exponential depth-slice curves to compare besides the default (empty: none).
+    #[arg(long, value_delimiter = ',', default_value = "2,6")]
+    depth_curves: Vec<f32>,
     /// Output folder (eval.md, eval.csv, eval.json, plots, sample images).
     #[arg(long, default_value = "out/eval")]
     out: PathBuf,
@@ -94,6 +97,9 @@ struct SettingsArgs {
     /// Temporal jitter + reprojection.
     #[arg(long)]
     temporal: bool,
+    /// Curvature of the exponential depth-slice distribution (larger: more slices near the eye).
+    #[arg(long, default_value_t = Settings::default().depth_curve)]
+    depth_curve: f32,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -125,6 +131,7 @@ impl SettingsArgs {
             parity: self.parity,
             trilinear: matches!(self.lookup, Lookup::Trilinear),
             temporal: self.temporal,
+            depth_curve: self.depth_curve,
         }
     }
 }
@@ -265,8 +272,7 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
         scene,
         &bvh,
         &cameras,
-        a.width,
-        a.height,
+        (a.width, a.height),
         a.time,
         settings,
         &progress_printer("truth"),
@@ -313,6 +319,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         frames: a.frames,
         truth_steps: a.truth_steps,
         time_s: a.time,
+        depth_curves: a.depth_curves,
         out: a.out.clone(),
         command,
     };

@@ -33,8 +33,7 @@ fn fixture() -> &'static Fixture {
             &scene,
             &bvh,
             &cams,
-            W,
-            H,
+            (W, H),
             0.0,
             TruthSettings::default(),
             &|_, _| {},
@@ -65,7 +64,7 @@ fn truth_is_converged() {
         steps: TruthSettings::default().steps * 2,
         ..TruthSettings::default()
     };
-    let (fine, _) = render_truth(&f.scene, &f.bvh, &cams, W, H, 0.0, doubled, &|_, _| {});
+    let (fine, _) = render_truth(&f.scene, &f.bvh, &cams, (W, H), 0.0, doubled, &|_, _| {});
     for (a, b) in f.truth.iter().zip(&fine) {
         let e = compare(b, a, W, H).unwrap();
         println!(

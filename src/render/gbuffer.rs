@@ -8,10 +8,24 @@ const VIEW_STRIDE: u64 = 256;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct RasterView {
+pub(crate) struct RasterView {
     view_proj: [[f32; 4]; 4],
     position: [f32; 4],
     forward: [f32; 4],
+}
+
+impl RasterView {
+    /// One raster view per camera, sharing the clip range and aspect ratio.
+    pub(crate) fn for_cameras(cameras: &[Camera], aspect: f32, near: f32, far: f32) -> Vec<Self> {
+        cameras
+            .iter()
+            .map(|c| Self {
+                view_proj: (c.projection(aspect, near, far) * c.view()).to_cols_array_2d(),
+                position: c.position.extend(0.0).to_array(),
+                forward: c.forward.extend(0.0).to_array(),
+            })
+            .collect()
+    }
 }
 
 /// The raster pipeline and its per-viewer uniforms.
@@ -120,26 +134,18 @@ impl GBuffer {
         enc: &mut wgpu::CommandEncoder,
         scene: &SceneGpu,
         volumes: &ViewerVolumes,
-        cameras: &[Camera],
-        near: f32,
-        far: f32,
+        views: &[RasterView],
         ts: &Timestamps,
     ) {
-        if cameras.len() > self.capacity {
-            self.capacity = cameras.len().next_power_of_two();
+        if views.len() > self.capacity {
+            self.capacity = views.len().next_power_of_two();
             self.uniforms = Self::uniform_buffer(ctx, self.capacity);
         }
-        let aspect = volumes.layout.width as f32 / volumes.layout.height as f32;
-        let mut bytes = vec![0u8; VIEW_STRIDE as usize * cameras.len()];
-        for (i, c) in cameras.iter().enumerate() {
-            let rv = RasterView {
-                view_proj: (c.projection(aspect, near, far) * c.view()).to_cols_array_2d(),
-                position: c.position.extend(0.0).to_array(),
-                forward: c.forward.extend(0.0).to_array(),
-            };
+        let mut bytes = vec![0u8; VIEW_STRIDE as usize * views.len()];
+        for (i, rv) in views.iter().enumerate() {
             let at = i * VIEW_STRIDE as usize;
             bytes[at..at + std::mem::size_of::<RasterView>()]
-                .copy_from_slice(bytemuck::bytes_of(&rv));
+                .copy_from_slice(bytemuck::bytes_of(rv));
         }
         ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -162,7 +168,7 @@ impl GBuffer {
                 ..Default::default()
             })
         };
-        let n = cameras.len() as u32;
+        let n = views.len() as u32;
         for i in 0..n {
             let views = [
                 layer(&volumes.gbuf_position, i),

@@ -37,6 +37,8 @@ pub(crate) struct FrameGpu {
     pub max_ray_m: f32,
     pub frustum_slices: u32,
     pub slices: u32,
+    pub depth_curve: f32,
+    pub _pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -132,7 +134,7 @@ impl From<&Medium> for MediumGpu {
     }
 }
 
-const _: () = assert!(std::mem::size_of::<FrameGpu>() == 96);
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 112);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 240);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 96);

@@ -236,14 +236,13 @@ impl PixelContext<'_> {
     }
 }
 
-/// Renders every camera at `width`×`height`; returns one RGBA8 image per camera and the
+/// Renders every camera at `(width, height)` pixels; returns one RGBA8 image per camera and the
 /// rays traced. `progress` is called with (rows done, rows total) as rows finish.
 pub fn render_truth(
     scene: &Scene,
     bvh: &Bvh,
     cameras: &[Camera],
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     time_s: f32,
     settings: TruthSettings,
     progress: &(dyn Fn(usize, usize) + Sync),
