@@ -8,8 +8,6 @@
 @group(1) @binding(3) var gbuf_normal: texture_2d_array<f32>;
 @group(1) @binding(4) var gbuf_albedo: texture_2d_array<f32>;
 
-var<workgroup> wg_rays: atomic<u32>;
-
 fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
     if s < 0 {
         return vec4f(0.0, 0.0, 0.0, 1.0);
@@ -51,11 +49,8 @@ fn srgb(c: vec3f) -> vec3f {
 }
 
 @compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
-    if lid == 0u {
-        atomicStore(&wg_rays, 0u);
-    }
-    workgroupBarrier();
+fn main(@builtin(global_invocation_id) gid: vec3u) {
+    var rays = 0u;
     if gid.z < frame.view_count {
         let v = views[gid.z];
         if gid.x < v.size.x && gid.y < v.size.y {
@@ -66,7 +61,6 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
             let dir = view_ray(v, pix);
             var color = frame.sky;
             var depth = v.far;
-            var rays = 0u;
             if pos.w > 0.0 {
                 depth = pos.w;
                 let p = pos.xyz;
@@ -102,12 +96,8 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
             }
             let ldr = srgb(aces(color * frame.exposure));
             let q = vec4u(vec3u(round(clamp(ldr, vec3f(0.0), vec3f(1.0)) * 255.0)), 255u);
-            atomicAdd(&wg_rays, rays);
             output[v.pixel_base + gid.x + gid.y * v.size.x] = q.x | (q.y << 8u) | (q.z << 16u) | (q.w << 24u);
         }
     }
-    workgroupBarrier();
-    if lid == 0u {
-        atomicAdd(&counters[C_SURFACE_RAYS], atomicLoad(&wg_rays));
-    }
+    count(C_SURFACE_RAYS, rays);
 }

@@ -8,9 +8,6 @@
 @group(1) @binding(2) var<storage, read_write> froxels: array<vec2u>;
 @group(1) @binding(3) var<storage, read> history: array<vec2u>;
 
-var<workgroup> wg_rays: atomic<u32>;
-var<workgroup> wg_froxels: atomic<u32>;
-
 fn grid_mask(c: vec3i) -> u32 {
     let d = vec3i(frame.grid_dims);
     let q = clamp(c, vec3i(0), d - 1);
@@ -45,12 +42,9 @@ fn grid_visibility(p: vec3f) -> array<f32, 8> {
 }
 
 @compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
-    if lid == 0u {
-        atomicStore(&wg_rays, 0u);
-        atomicStore(&wg_froxels, 0u);
-    }
-    workgroupBarrier();
+fn main(@builtin(global_invocation_id) gid: vec3u) {
+    var rays = 0u;
+    var lit = 0u;
     let view_index = gid.z / frame.slices;
     let slice = gid.z % frame.slices;
     if view_index < frame.view_count {
@@ -65,7 +59,6 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
             var out = vec4f(0.0);
             if m.extinction > 0.0 || any(m.emission > vec3f(0.0)) {
                 var vis: array<f32, 8>;
-                var rays = 0u;
                 if (frame.flags & FLAG_SHARED) == 0u {
                     for (var li = 0u; li < frame.light_count; li++) {
                         let l = lights[li];
@@ -89,8 +82,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
                 // to), which stays within f16 range for σt up to 10⁴ m⁻¹.
                 let s_rgb = in_scattering(m, p, dir, vis);
                 out = vec4f(min(s_rgb / max(m.extinction, SIGMA_EPS), vec3f(6.0e4)), m.extinction);
-                atomicAdd(&wg_rays, rays);
-                atomicAdd(&wg_froxels, 1u);
+                lit = 1u;
             }
             if (frame.flags & FLAG_HISTORY) != 0u {
                 // Temporal reprojection: blend with last frame's froxel at the same
@@ -114,9 +106,6 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
             froxels[index] = pack_rgba16(out);
         }
     }
-    workgroupBarrier();
-    if lid == 0u {
-        atomicAdd(&counters[C_LIGHTING_RAYS], atomicLoad(&wg_rays));
-        atomicAdd(&counters[C_FROXELS_WITH_MEDIA], atomicLoad(&wg_froxels));
-    }
+    count(C_LIGHTING_RAYS, rays);
+    count(C_FROXELS_WITH_MEDIA, lit);
 }

@@ -4,14 +4,9 @@
 
 @group(1) @binding(0) var<storage, read_write> frustum: array<u32>;
 
-var<workgroup> wg_rays: atomic<u32>;
-
 @compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
-    if lid == 0u {
-        atomicStore(&wg_rays, 0u);
-    }
-    workgroupBarrier();
+fn main(@builtin(global_invocation_id) gid: vec3u) {
+    var rays = 0u;
     let view_index = gid.z / frame.frustum_slices;
     let slice = gid.z % frame.frustum_slices;
     if view_index < frame.view_count {
@@ -22,7 +17,6 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
             let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
             let p = v.position + dir * (z / dot(dir, v.forward));
             var mask = 0u;
-            var rays = 0u;
             for (var li = 0u; li < frame.light_count; li++) {
                 let l = lights[li];
                 if all(light_radiance(l, p) == vec3f(0.0)) {
@@ -34,11 +28,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
                 }
             }
             frustum[v.frustum_base + gid.x + v.frustum_dims.x * (gid.y + v.frustum_dims.y * slice)] = mask;
-            atomicAdd(&wg_rays, rays);
         }
     }
-    workgroupBarrier();
-    if lid == 0u {
-        atomicAdd(&counters[C_FRUSTUM_RAYS], atomicLoad(&wg_rays));
-    }
+    count(C_FRUSTUM_RAYS, rays);
 }

@@ -20,24 +20,16 @@ fn sphere_in_view(v: View, c: vec3f, r: f32) -> bool {
         && y - z * v.tan_y <= r * sqrt(1.0 + v.tan_y * v.tan_y);
 }
 
-var<workgroup> wg_rays: atomic<u32>;
-var<workgroup> wg_voxels: atomic<u32>;
-
 @compute @workgroup_size(4, 4, 4)
-fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
-    if lid == 0u {
-        atomicStore(&wg_rays, 0u);
-        atomicStore(&wg_voxels, 0u);
-    }
-    workgroupBarrier();
+fn main(@builtin(global_invocation_id) gid: vec3u) {
+    var rays = 0u;
+    var traced = 0u;
     let dims = frame.grid_dims;
     let in_grid = gid.x < frame.grid_words_x && gid.y < dims.y && gid.z < dims.z
         && ((frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u));
     if in_grid {
         let word_index = gid.x + frame.grid_words_x * (gid.y + dims.y * gid.z);
         var word = grid[word_index];
-        var traced = 0u;
-        var rays = 0u;
         // Trilinear lookups read the 8 voxels around a sample, so a voxel one voxel
         // outside a frustum may be read: widen the test by a voxel diagonal.
         var radius = 0.866 * frame.voxel_size;
@@ -77,13 +69,8 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
         if traced != 0u {
             grid[word_index] = word;
             atomicOr(&touched[word_index / 8u], traced << (4u * (word_index % 8u)));
-            atomicAdd(&wg_rays, rays);
-            atomicAdd(&wg_voxels, countOneBits(traced));
         }
     }
-    workgroupBarrier();
-    if lid == 0u {
-        atomicAdd(&counters[C_GRID_RAYS], atomicLoad(&wg_rays));
-        atomicAdd(&counters[C_VOXELS_TRACED], atomicLoad(&wg_voxels));
-    }
+    count(C_GRID_RAYS, rays);
+    count(C_VOXELS_TRACED, countOneBits(traced));
 }

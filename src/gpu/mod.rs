@@ -13,6 +13,9 @@ pub struct GpuContext {
     pub adapter_info: wgpu::AdapterInfo,
     /// Whether compute and render passes can write timestamps.
     pub has_timestamps: bool,
+    /// Whether shaders may use subgroup operations (counters are then summed per
+    /// subgroup instead of per workgroup, which avoids workgroup barriers).
+    pub has_subgroups: bool,
     /// Nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
     /// Largest storage buffer binding, bytes.
@@ -64,6 +67,11 @@ impl GpuContext {
         if has_timestamps {
             required_features |= wgpu::Features::TIMESTAMP_QUERY;
         }
+        let has_subgroups = features.contains(wgpu::Features::SUBGROUP)
+            && std::env::var_os("FOGCAST_NO_SUBGROUPS").is_none();
+        if has_subgroups {
+            required_features |= wgpu::Features::SUBGROUP;
+        }
         let adapter_limits = adapter.limits();
         let required_limits = wgpu::Limits {
             max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size,
@@ -93,6 +101,7 @@ impl GpuContext {
             queue,
             adapter_info: info,
             has_timestamps,
+            has_subgroups,
             max_storage_binding: adapter_limits.max_storage_buffer_binding_size as u64,
         })
     }

@@ -36,13 +36,10 @@ impl Composite {
                     texture_entry(4),
                 ],
             });
-        let module = ctx.shader(
+        let module = super::stage_shader(
+            ctx,
             "composite",
-            &[
-                super::COMMON_WGSL,
-                super::BVH_WGSL,
-                include_str!("../../shaders/composite.wgsl"),
-            ],
+            include_str!("../../shaders/composite.wgsl"),
         );
         Composite {
             pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),

@@ -13,13 +13,10 @@ pub(crate) struct FroxelLighting {
 impl FroxelLighting {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let layout = ctx.storage_layout("froxel lighting", &[false, false, true, false]);
-        let module = ctx.shader(
+        let module = super::stage_shader(
+            ctx,
             "froxel_lighting",
-            &[
-                super::COMMON_WGSL,
-                super::BVH_WGSL,
-                include_str!("../../shaders/froxel_lighting.wgsl"),
-            ],
+            include_str!("../../shaders/froxel_lighting.wgsl"),
         );
         FroxelLighting {
             pipeline: ctx.compute_pipeline("froxel_lighting", &module, &[scene_layout, &layout]),

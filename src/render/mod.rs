@@ -28,8 +28,22 @@ use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 use std::time::Instant;
 
-pub(crate) const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
-pub(crate) const BVH_WGSL: &str = include_str!("../../shaders/bvh.wgsl");
+const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
+const BVH_WGSL: &str = include_str!("../../shaders/bvh.wgsl");
+
+/// Compiles one compute stage: the shared bindings and helpers (common.wgsl), the
+/// frame-counter helper for this adapter (per subgroup where supported), BVH traversal,
+/// then the stage itself.
+pub(crate) fn stage_shader(ctx: &GpuContext, label: &str, stage: &str) -> wgpu::ShaderModule {
+    // naga (wgpu 30) takes subgroup built-ins when the device has the feature, and
+    // rejects the `enable subgroups;` directive.
+    let count = if ctx.has_subgroups {
+        include_str!("../../shaders/count_subgroup.wgsl")
+    } else {
+        include_str!("../../shaders/count_atomic.wgsl")
+    };
+    ctx.shader(label, &[COMMON_WGSL, count, BVH_WGSL, stage])
+}
 
 /// How shadows in the fog are computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]

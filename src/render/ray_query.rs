@@ -71,13 +71,10 @@ impl ShadowRayQuery {
             ],
         });
         let rays_layout = ctx.storage_layout("ray query segments", &[false, true]);
-        let module = ctx.shader(
+        let module = super::stage_shader(
+            ctx,
             "ray_query",
-            &[
-                super::COMMON_WGSL,
-                super::BVH_WGSL,
-                include_str!("../../shaders/ray_query.wgsl"),
-            ],
+            include_str!("../../shaders/ray_query.wgsl"),
         );
         let pipeline = ctx.compute_pipeline("ray_query", &module, &[&scene_layout, &rays_layout]);
         ShadowRayQuery {

@@ -13,13 +13,10 @@ pub(crate) struct ShadowFrustum {
 impl ShadowFrustum {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let layout = ctx.storage_layout("shadow frustum", &[true]);
-        let module = ctx.shader(
+        let module = super::stage_shader(
+            ctx,
             "shadow_frustum",
-            &[
-                super::COMMON_WGSL,
-                super::BVH_WGSL,
-                include_str!("../../shaders/shadow_frustum.wgsl"),
-            ],
+            include_str!("../../shaders/shadow_frustum.wgsl"),
         );
         ShadowFrustum {
             pipeline: ctx.compute_pipeline("shadow_frustum", &module, &[scene_layout, &layout]),

@@ -41,13 +41,10 @@ impl SharedShadowGrid {
             ctx.max_storage_binding as f64 / 1048576.0
         );
         let layout = ctx.storage_layout("shared grid", &[true, true]);
-        let module = ctx.shader(
+        let module = super::stage_shader(
+            ctx,
             "shared_grid",
-            &[
-                super::COMMON_WGSL,
-                super::BVH_WGSL,
-                include_str!("../../shaders/shared_grid.wgsl"),
-            ],
+            include_str!("../../shaders/shared_grid.wgsl"),
         );
         Ok(SharedShadowGrid {
             min: bounds.0,

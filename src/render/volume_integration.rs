@@ -13,13 +13,10 @@ pub(crate) struct VolumeIntegration {
 impl VolumeIntegration {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let layout = ctx.storage_layout("volume integration", &[false, true]);
-        let module = ctx.shader(
+        let module = super::stage_shader(
+            ctx,
             "volume_integration",
-            &[
-                super::COMMON_WGSL,
-                super::BVH_WGSL,
-                include_str!("../../shaders/volume_integration.wgsl"),
-            ],
+            include_str!("../../shaders/volume_integration.wgsl"),
         );
         VolumeIntegration {
             pipeline: ctx.compute_pipeline("volume_integration", &module, &[scene_layout, &layout]),
