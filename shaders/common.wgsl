@@ -19,7 +19,9 @@ struct Frame {
     frustum_slices: u32,
     slices: u32,
     depth_curve: f32,
-    _pad0: u32,
+    // Lights whose position, direction, cone or colour changed since the last frame
+    // (bit per light): cached grid bits of these lights are stale.
+    dirty_lights: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -30,6 +32,8 @@ const FLAG_TRILINEAR: u32 = 2u;  // 8-voxel trilinear grid lookup (000 §3.1.3)
 const FLAG_SHARED: u32 = 4u;     // mode `shared` (else `reference`: a ray per froxel)
 const FLAG_MEDIA: u32 = 8u;      // the scene has participating media
 const FLAG_HISTORY: u32 = 16u;   // temporal reprojection has a valid history
+const FLAG_DEMAND: u32 = 32u;    // grid: trace only voxels that froxels requested
+const FLAG_CACHE: u32 = 64u;     // grid: keep voxels' light bits until a light changes
 
 struct View {
     view_proj: mat4x4f,
@@ -94,6 +98,7 @@ const C_LIGHTING_RAYS: u32 = 2u;
 const C_SURFACE_RAYS: u32 = 3u;
 const C_VOXELS_TRACED: u32 = 4u;
 const C_FROXELS_WITH_MEDIA: u32 = 5u;
+const C_VOXELS_NEEDED: u32 = 6u;
 
 const PI: f32 = 3.14159265358979;
 // Froxels store S / max(σt, SIGMA_EPS); below it the σt → 0 limit S·d is used.
@@ -103,6 +108,32 @@ const SIGMA_EPS: f32 = 1e-4;
 fn view_ray(v: View, pix: vec2f) -> vec3f {
     let ndc = vec2f(2.0 * pix.x / f32(v.size.x) - 1.0, 1.0 - 2.0 * pix.y / f32(v.size.y));
     return normalize(v.forward + v.right * (ndc.x * v.tan_x) + v.up * (ndc.y * v.tan_y));
+}
+
+// The sample of froxel (x, y, slice) of view `v`: its world point (on the view ray
+// through the froxel's centre, at the slice's centre depth) and the unit ray. The
+// lighting and grid-request stages both use it, so they see exactly the same points.
+struct FroxelSample {
+    p: vec3f,
+    dir: vec3f,
+}
+
+fn froxel_sample(v: View, xy: vec2u, slice: u32) -> FroxelSample {
+    let pix = (vec2f(xy) + 0.5) * f32(v.froxel_px);
+    let dir = view_ray(v, min(pix, vec2f(v.size)));
+    let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
+    return FroxelSample(v.position + dir * (z / dot(dir, v.forward)), dir);
+}
+
+// Continuous grid coordinate of `p`: voxel centres sit at integers.
+fn grid_coord(p: vec3f) -> vec3f {
+    return (p - frame.grid_min) / frame.voxel_size - 0.5;
+}
+
+// Linear index of voxel `c`, clamped into the grid (lookups clamp the same way).
+fn voxel_index(c: vec3i) -> u32 {
+    let q = vec3u(clamp(c, vec3i(0), vec3i(frame.grid_dims) - 1));
+    return q.x + frame.grid_dims.x * (q.y + frame.grid_dims.y * q.z);
 }
 
 // View depth of the boundary at (fractional) slice coordinate `s`: an exponential

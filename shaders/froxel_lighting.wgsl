@@ -9,17 +9,15 @@
 @group(1) @binding(3) var<storage, read> history: array<vec2u>;
 
 fn grid_mask(c: vec3i) -> u32 {
-    let d = vec3i(frame.grid_dims);
-    let q = clamp(c, vec3i(0), d - 1);
-    let x = u32(q.x);
-    let word = grid[x / 4u + frame.grid_words_x * (u32(q.y) + frame.grid_dims.y * u32(q.z))];
-    return (word >> (8u * (x % 4u))) & 0xffu;
+    let q = vec3u(clamp(c, vec3i(0), vec3i(frame.grid_dims) - 1));
+    let word = grid[q.x / 4u + frame.grid_words_x * (q.y + frame.grid_dims.y * q.z)];
+    return (word >> (8u * (q.x % 4u))) & 0xffu;
 }
 
 // Visibility of each light at p from the shared grid.
 fn grid_visibility(p: vec3f) -> array<f32, 8> {
     var vis: array<f32, 8>;
-    let g = (p - frame.grid_min) / frame.voxel_size - 0.5;
+    let g = grid_coord(p);
     if (frame.flags & FLAG_TRILINEAR) == 0u {
         let m = grid_mask(vec3i(floor(g + 0.5)));
         for (var li = 0u; li < 8u; li++) {
@@ -51,10 +49,9 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         let v = views[view_index];
         if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y {
             let index = v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * slice);
-            let pix = (vec2f(gid.xy) + 0.5) * f32(v.froxel_px);
-            let dir = view_ray(v, min(pix, vec2f(v.size)));
-            let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
-            let p = v.position + dir * (z / dot(dir, v.forward));
+            let sample = froxel_sample(v, gid.xy, slice);
+            let p = sample.p;
+            let dir = sample.dir;
             let m = sample_media(p);
             var out = vec4f(0.0);
             if m.extinction > 0.0 || any(m.emission > vec3f(0.0)) {

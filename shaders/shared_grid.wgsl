@@ -1,10 +1,16 @@
 // Stage 1 (000 §3.1.1): the shared world-space shadow grid.
 // One invocation owns one u32 word = 4 voxels along x, each an 8-bit light bitmask.
-// A voxel is traced only if its bounding sphere touches at least one viewer's frustum;
-// with parity on, only voxels whose z parity matches the frame's parity are updated.
+// A voxel is needed if its bounding sphere touches at least one viewer's frustum (the
+// paper), or, with FLAG_DEMAND, if a froxel requested it (grid_requests.wgsl). With
+// parity on, only voxels whose z parity matches the frame's parity are updated. With
+// FLAG_CACHE, `valid` keeps which light bits of each voxel are current (same layout as
+// the grid); a needed voxel traces only its stale lights, and a light that changed
+// (frame.dirty_lights) makes its bit stale in every voxel.
 
 @group(1) @binding(0) var<storage, read_write> grid: array<u32>;
 @group(1) @binding(1) var<storage, read_write> touched: array<atomic<u32>>;
+@group(1) @binding(2) var<storage, read> requests: array<u32>;
+@group(1) @binding(3) var<storage, read_write> valid: array<u32>;
 
 // Sphere (centre c, radius r) against the frustum of view v, exact plane distances.
 fn sphere_in_view(v: View, c: vec3f, r: f32) -> bool {
@@ -24,11 +30,17 @@ fn sphere_in_view(v: View, c: vec3f, r: f32) -> bool {
 fn main(@builtin(global_invocation_id) gid: vec3u) {
     var rays = 0u;
     var traced = 0u;
+    var needed = 0u;
     let dims = frame.grid_dims;
-    let in_grid = gid.x < frame.grid_words_x && gid.y < dims.y && gid.z < dims.z
-        && ((frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u));
-    if in_grid {
+    if gid.x < frame.grid_words_x && gid.y < dims.y && gid.z < dims.z {
         let word_index = gid.x + frame.grid_words_x * (gid.y + dims.y * gid.z);
+        let cache = (frame.flags & FLAG_CACHE) != 0u;
+        // Stale bits are dropped in every word, whether or not it is updated this frame.
+        let dirty = frame.dirty_lights & 0xffu;
+        let old_valid = select(0u, valid[word_index], cache);
+        var valid_bits = old_valid & ~(dirty * 0x01010101u);
+        let may_trace = (frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u);
+        let all_lights = (1u << frame.light_count) - 1u;
         var word = grid[word_index];
         // Trilinear lookups read the 8 voxels around a sample, so a voxel one voxel
         // outside a frustum may be read: widen the test by a voxel diagonal.
@@ -38,22 +50,37 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         }
         for (var i = 0u; i < 4u; i++) {
             let x = gid.x * 4u + i;
-            if x >= dims.x {
+            if x >= dims.x || !may_trace {
                 break;
             }
-            let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
             var seen = false;
-            for (var vi = 0u; vi < frame.view_count; vi++) {
-                if sphere_in_view(views[vi], centre, radius) {
-                    seen = true;
-                    break;
+            if (frame.flags & FLAG_DEMAND) != 0u {
+                seen = requests[x + dims.x * (gid.y + dims.y * gid.z)] != 0u;
+            } else {
+                let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
+                for (var vi = 0u; vi < frame.view_count; vi++) {
+                    if sphere_in_view(views[vi], centre, radius) {
+                        seen = true;
+                        break;
+                    }
                 }
             }
             if !seen {
                 continue;
             }
-            var mask = 0u;
+            needed += 1u;
+            let shift = 8u * i;
+            let current = (valid_bits >> shift) & 0xffu;
+            let stale = all_lights & ~current;
+            if stale == 0u {
+                continue; // every light bit is cached and current
+            }
+            let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
+            var mask = (word >> shift) & current;
             for (var li = 0u; li < frame.light_count; li++) {
+                if ((stale >> li) & 1u) == 0u {
+                    continue;
+                }
                 let l = lights[li];
                 if all(light_radiance(l, centre) == vec3f(0.0)) {
                     continue; // outside a spot cone: no ray needed
@@ -63,14 +90,19 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
                     mask |= 1u << li;
                 }
             }
-            word = (word & ~(0xffu << (8u * i))) | (mask << (8u * i));
+            word = (word & ~(0xffu << shift)) | (mask << shift);
+            valid_bits |= stale << shift;
             traced |= 1u << i;
         }
         if traced != 0u {
             grid[word_index] = word;
             atomicOr(&touched[word_index / 8u], traced << (4u * (word_index % 8u)));
         }
+        if cache && valid_bits != old_valid {
+            valid[word_index] = valid_bits;
+        }
     }
     count(C_GRID_RAYS, rays);
     count(C_VOXELS_TRACED, countOneBits(traced));
+    count(C_VOXELS_NEEDED, needed);
 }

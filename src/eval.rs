@@ -145,7 +145,11 @@ impl Runner {
                 fog_ms.push(sum(&|s| {
                     matches!(
                         s,
-                        "shared_grid" | "shadow_frustum" | "froxel_lighting" | "volume_integration"
+                        "grid_requests"
+                            | "shared_grid"
+                            | "shadow_frustum"
+                            | "froxel_lighting"
+                            | "volume_integration"
                     )
                 }));
                 frame_ms.push(if out.stats.timestamps {
@@ -173,7 +177,7 @@ fn variant_name(s: &Settings) -> String {
     let name = match s.mode {
         Mode::Reference => "reference".into(),
         Mode::Shared => format!(
-            "shared {}m {}{}{}",
+            "shared {}m {}{}{}{}{}",
             s.voxel_size_m,
             if s.trilinear { "trilinear" } else { "nearest" },
             if s.parity { " parity" } else { "" },
@@ -181,7 +185,9 @@ fn variant_name(s: &Settings) -> String {
                 ""
             } else {
                 " no-frustum"
-            }
+            },
+            if s.demand { " demand" } else { "" },
+            if s.cache { " cache" } else { "" },
         ),
     };
     name + &curve
@@ -258,6 +264,15 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
                 }
             }
         }
+    }
+    // fogcast's grid options beyond the paper, at the default voxel size.
+    for (demand, cache) in [(true, false), (true, true)] {
+        variants.push(Settings {
+            mode: Mode::Shared,
+            demand,
+            cache,
+            ..base
+        });
     }
     for &depth_curve in &cfg.depth_curves {
         if depth_curve != base.depth_curve {

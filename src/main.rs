@@ -100,6 +100,12 @@ struct SettingsArgs {
     /// Curvature of the exponential depth-slice distribution (larger: more slices near the eye).
     #[arg(long, default_value_t = Settings::default().depth_curve)]
     depth_curve: f32,
+    /// Demand-driven grid update: trace only the voxels some froxel reads.
+    #[arg(long)]
+    demand: bool,
+    /// Temporal shadow caching: keep voxels' light bits until the light moves.
+    #[arg(long)]
+    cache: bool,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -132,6 +138,8 @@ impl SettingsArgs {
             trilinear: matches!(self.lookup, Lookup::Trilinear),
             temporal: self.temporal,
             depth_curve: self.depth_curve,
+            demand: self.demand,
+            cache: self.cache,
         }
     }
 }

@@ -8,6 +8,8 @@ pub(crate) const FLAG_TRILINEAR: u32 = 2;
 pub(crate) const FLAG_SHARED: u32 = 4;
 pub(crate) const FLAG_MEDIA: u32 = 8;
 pub(crate) const FLAG_HISTORY: u32 = 16;
+pub(crate) const FLAG_DEMAND: u32 = 32;
+pub(crate) const FLAG_CACHE: u32 = 64;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 8;
@@ -17,6 +19,7 @@ pub(crate) const C_LIGHTING_RAYS: usize = 2;
 pub(crate) const C_SURFACE_RAYS: usize = 3;
 pub(crate) const C_VOXELS_TRACED: usize = 4;
 pub(crate) const C_FROXELS_WITH_MEDIA: usize = 5;
+pub(crate) const C_VOXELS_NEEDED: usize = 6;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -38,7 +41,8 @@ pub(crate) struct FrameGpu {
     pub frustum_slices: u32,
     pub slices: u32,
     pub depth_curve: f32,
-    pub _pad: [u32; 3],
+    pub dirty_lights: u32,
+    pub _pad: [u32; 2],
 }
 
 #[repr(C)]

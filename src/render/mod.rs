@@ -83,6 +83,14 @@ pub struct Settings {
     /// first third of the slices (the shadow frustum's) within 0.75 m of the eye; the
     /// default 4 reaches 2 m there and is measured in `docs/accuracy.md`.
     pub depth_curve: f32,
+    /// Demand-driven grid update (beyond the paper): trace only the voxels that some
+    /// froxel's lookup will read, instead of every voxel inside some frustum.
+    #[serde(default)]
+    pub demand: bool,
+    /// Temporal shadow caching (beyond the paper): a voxel's light bit stays valid
+    /// until that light changes, so a static scene traces each voxel once.
+    #[serde(default)]
+    pub cache: bool,
 }
 
 impl Default for Settings {
@@ -98,6 +106,8 @@ impl Default for Settings {
             trilinear: true,
             temporal: false,
             depth_curve: 4.0,
+            demand: false,
+            cache: false,
         }
     }
 }
@@ -152,10 +162,12 @@ pub(crate) enum Stage {
     FroxelLighting = 3,
     VolumeIntegration = 4,
     Composite = 5,
+    GridRequests = 6,
 }
 
-const STAGES: [(Stage, &str); 6] = [
+const STAGES: [(Stage, &str); 7] = [
     (Stage::GBuffer, "gbuffer"),
+    (Stage::GridRequests, "grid_requests"),
     (Stage::SharedGrid, "shared_grid"),
     (Stage::ShadowFrustum, "shadow_frustum"),
     (Stage::FroxelLighting, "froxel_lighting"),
@@ -233,6 +245,8 @@ pub struct Renderer {
     ts_resolve: Option<wgpu::Buffer>,
     frame_index: u32,
     prev_view_proj: Vec<glam::Mat4>,
+    /// The lights as last uploaded (animated lights move; a change marks the light dirty).
+    lights_uploaded: Option<Vec<LightGpu>>,
     triangles: usize,
 }
 
@@ -265,9 +279,18 @@ impl Renderer {
         settings.validate()?;
         let scene_gpu = scene_gpu::SceneGpu::new(&ctx, &scene, bvh)?;
         let grid = match (settings.mode, scene.media_bounds()) {
-            (Mode::Shared, Some(bounds)) if !scene.lights.is_empty() => Some(
-                SharedShadowGrid::new(&ctx, &scene_gpu.layout, bounds, settings.voxel_size_m)?,
-            ),
+            (Mode::Shared, Some(bounds)) if !scene.lights.is_empty() => {
+                Some(SharedShadowGrid::new(
+                    &ctx,
+                    &scene_gpu.layout,
+                    bounds,
+                    settings.voxel_size_m,
+                    shared_grid::UpdatePolicy {
+                        demand: settings.demand,
+                        cache: settings.cache,
+                    },
+                )?)
+            }
             _ => None,
         };
         let set = ctx.has_timestamps.then(|| {
@@ -299,6 +322,7 @@ impl Renderer {
             ts_resolve,
             frame_index: 0,
             prev_view_proj: Vec::new(),
+            lights_uploaded: None,
             ctx,
             scene,
             settings,
@@ -432,6 +456,28 @@ impl Renderer {
         if history {
             flags |= FLAG_HISTORY;
         }
+        if s.demand {
+            flags |= FLAG_DEMAND;
+        }
+        if s.cache {
+            flags |= FLAG_CACHE;
+        }
+        // Animated lights: upload the lights at this time, marking the ones that changed.
+        let lights: Vec<LightGpu> = scene.lights_at(time_s).iter().map(LightGpu::from).collect();
+        let dirty_lights = match &self.lights_uploaded {
+            Some(prev) => lights
+                .iter()
+                .zip(prev)
+                .enumerate()
+                .filter(|(_, (a, b))| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
+                .fold(0u32, |m, (i, _)| m | (1 << i)),
+            None => (1u32 << lights.len()) - 1,
+        };
+        if dirty_lights != 0 {
+            self.scene_gpu.write_lights(&self.ctx, &lights);
+        }
+        self.lights_uploaded = Some(lights);
+        let s = &self.settings;
         let (lo, hi) = scene.bounds;
         let g = self.grid.as_ref();
         let frame = FrameGpu {
@@ -457,7 +503,8 @@ impl Renderer {
             },
             slices: s.slices,
             depth_curve: s.depth_curve,
-            _pad: [0; 3],
+            dirty_lights,
+            _pad: [0; 2],
         };
         self.scene_gpu.ensure_views(&self.ctx, cameras.len())?;
         self.ctx
@@ -527,6 +574,12 @@ impl Renderer {
         if has_media {
             if shared && has_lights {
                 if let Some(grid) = &self.grid {
+                    if self.settings.demand
+                        && grid.add_request_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps)
+                    {
+                        dispatches
+                            .push(("grid_requests", SharedShadowGrid::request_workgroups(vol)));
+                    }
                     grid.add_pass(&ctx, &mut enc, scene_bg, &self.timestamps);
                     dispatches.push(("shared_grid", grid.workgroups()));
                 }

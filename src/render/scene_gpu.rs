@@ -24,6 +24,14 @@ pub(crate) struct SceneGpu {
 }
 
 impl SceneGpu {
+    /// Overwrites the lights (same count as at creation: animated lights move).
+    pub(crate) fn write_lights(&self, ctx: &GpuContext, lights: &[LightGpu]) {
+        if !lights.is_empty() {
+            ctx.queue
+                .write_buffer(&self.lights, 0, bytemuck::cast_slice(lights));
+        }
+    }
+
     pub(crate) fn new(ctx: &GpuContext, scene: &Scene, bvh: &Bvh) -> anyhow::Result<SceneGpu> {
         let lights: Vec<LightGpu> = scene.lights.iter().map(LightGpu::from).collect();
         let media: Vec<MediumGpu> = scene.media.iter().map(MediumGpu::from).collect();

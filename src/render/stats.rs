@@ -69,6 +69,9 @@ pub struct FrameStats {
     pub rays: RayCounts,
     /// Grid voxels traced this frame.
     pub voxels_traced: u64,
+    /// Grid voxels needed this frame (in some frustum, or requested by a froxel with
+    /// `demand`); with `cache` most are served from earlier frames without tracing.
+    pub voxels_needed: u64,
     /// Froxels with non-zero media (the rest skip shadow work).
     pub froxels_with_media: u64,
     /// Shared grid dimensions (0 when there is no grid).
@@ -138,6 +141,7 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         lights: i.scene.lights.len(),
         rays,
         voxels_traced: c(C_VOXELS_TRACED),
+        voxels_needed: c(C_VOXELS_NEEDED),
         froxels_with_media: c(C_FROXELS_WITH_MEDIA),
         grid_dims: i.grid.map_or([0; 3], |g| g.dims.to_array()),
         dispatches: i

@@ -122,6 +122,7 @@ pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
             albedo: [0.7, 0.65, 0.55],
         }],
         lights: vec![LightDesc::Directional {
+            swing: None,
             direction: [0.25, -1.0, 0.18],
             color: [1.0, 0.92, 0.8],
             intensity: 6.0,

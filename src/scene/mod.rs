@@ -201,6 +201,9 @@ pub enum LightDesc {
         color: [f32; 3],
         /// Irradiance multiplier.
         intensity: f32,
+        /// Optional pendulum motion (an animated light).
+        #[serde(default)]
+        swing: Option<SwingDesc>,
     },
     /// Omnidirectional point light with inverse-square falloff.
     Point {
@@ -211,6 +214,9 @@ pub enum LightDesc {
         color: [f32; 3],
         /// Intensity (radiance at 1 m).
         intensity: f32,
+        /// Optional pendulum motion (an animated light).
+        #[serde(default)]
+        swing: Option<SwingDesc>,
     },
     /// Spot light: a point light limited to a cone with a smooth edge.
     Spot {
@@ -227,7 +233,27 @@ pub enum LightDesc {
         inner_deg: f32,
         /// Zero-intensity half angle, degrees.
         outer_deg: f32,
+        /// Optional pendulum motion (an animated light).
+        #[serde(default)]
+        swing: Option<SwingDesc>,
     },
+}
+
+/// Pendulum motion of a light: at time t it is rotated about `axis` through `pivot` by
+/// `degrees · sin(2π t / period_s)` (position and direction alike; a directional light
+/// only turns). A swinging street lamp, or a sun moving across the sky.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SwingDesc {
+    /// Point the light swings about, metres (ignored for directional lights).
+    #[serde(default)]
+    pub pivot: [f32; 3],
+    /// Rotation axis (need not be normalised).
+    pub axis: [f32; 3],
+    /// Amplitude, degrees (0..=180).
+    pub degrees: f32,
+    /// Period, seconds (> 0).
+    pub period_s: f32,
 }
 
 fn white() -> [f32; 3] {
@@ -324,6 +350,19 @@ pub struct SceneDesc {
     pub camera: CameraPath,
 }
 
+/// A validated pendulum motion, render space.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Swing {
+    /// Pivot, render space.
+    pub pivot: Vec3,
+    /// Unit rotation axis.
+    pub axis: Vec3,
+    /// Amplitude, radians.
+    pub amplitude_rad: f32,
+    /// Period, seconds.
+    pub period_s: f32,
+}
+
 /// A validated light in the form the renderers use.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Light {
@@ -339,6 +378,23 @@ pub struct Light {
     pub cos_outer: f32,
     /// cos of the spot's inner half angle (−1 otherwise).
     pub cos_inner: f32,
+    /// Animation (`None`: the light never moves).
+    pub swing: Option<Swing>,
+}
+
+impl Light {
+    /// The light at scene time `time_s` (itself when it does not move).
+    pub fn at(&self, time_s: f32) -> Light {
+        let Some(sw) = self.swing else { return *self };
+        let phase = (std::f64::consts::TAU * (time_s as f64 / sw.period_s as f64)).sin();
+        let rot = glam::Quat::from_axis_angle(sw.axis, sw.amplitude_rad * phase as f32);
+        let mut l = *self;
+        l.direction = (rot * self.direction).normalize();
+        if l.kind != 0 {
+            l.position = sw.pivot + rot * (self.position - sw.pivot);
+        }
+        l
+    }
 }
 
 /// A validated medium in render space.
@@ -393,6 +449,16 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// The lights at scene time `time_s` (animated lights moved).
+    pub fn lights_at(&self, time_s: f32) -> Vec<Light> {
+        self.lights.iter().map(|l| l.at(time_s)).collect()
+    }
+
+    /// Whether any light moves over time.
+    pub fn has_animated_lights(&self) -> bool {
+        self.lights.iter().any(|l| l.swing.is_some())
+    }
+
     /// Loads a built-in scene by name, a `.toml` scene file, or a `.glb`/`.gltf` file
     /// (which gets a default sun, fog and camera path around its bounds).
     pub fn load(name_or_path: &str) -> Result<Scene, SceneError> {
@@ -572,6 +638,7 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                 direction,
                 color,
                 intensity,
+                ..
             } => (
                 Light {
                     kind: 0,
@@ -580,6 +647,7 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                     radiance: radiance(color, intensity)?,
                     cos_outer: -1.0,
                     cos_inner: -1.0,
+                    swing: None,
                 },
                 glam::DVec3::ZERO,
             ),
@@ -587,6 +655,7 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                 position,
                 color,
                 intensity,
+                ..
             } => {
                 check_finite(&f("position"), &position)?;
                 (
@@ -597,6 +666,7 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                         radiance: radiance(color, intensity)?,
                         cos_outer: -1.0,
                         cos_inner: -1.0,
+                        swing: None,
                     },
                     Vec3::from(position).as_dvec3(),
                 )
@@ -608,6 +678,7 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                 intensity,
                 inner_deg,
                 outer_deg,
+                ..
             } => {
                 check_finite(&f("position"), &position)?;
                 check_range(
@@ -632,12 +703,42 @@ fn validate_lights(lights: &[LightDesc]) -> Result<Vec<(Light, glam::DVec3)>, Sc
                         radiance: radiance(color, intensity)?,
                         cos_outer: outer_deg.to_radians().cos(),
                         cos_inner: inner_deg.to_radians().cos(),
+                        swing: None,
                     },
                     Vec3::from(position).as_dvec3(),
                 )
             }
         };
-        out.push(light);
+        let (mut light, world_pos) = light;
+        let swing = match l {
+            LightDesc::Directional { swing, .. }
+            | LightDesc::Point { swing, .. }
+            | LightDesc::Spot { swing, .. } => swing,
+        };
+        if let Some(sw) = swing {
+            check_finite(&f("swing.pivot"), &sw.pivot)?;
+            check_range(
+                &f("swing.degrees"),
+                sw.degrees,
+                0.0,
+                180.0,
+                "must be between 0 and 180 degrees",
+            )?;
+            check_range(
+                &f("swing.period_s"),
+                sw.period_s,
+                1e-3,
+                1e6,
+                "must be between 0.001 and 1e6 seconds",
+            )?;
+            light.swing = Some(Swing {
+                pivot: Vec3::from(sw.pivot),
+                axis: unit("swing.axis", sw.axis)?,
+                amplitude_rad: sw.degrees.to_radians(),
+                period_s: sw.period_s,
+            });
+        }
+        out.push((light, world_pos));
     }
     Ok(out)
 }
@@ -655,6 +756,9 @@ fn rank_lights(
         .map(|(mut l, world_pos)| {
             if l.kind != 0 {
                 l.position = (world_pos - origin).as_vec3();
+            }
+            if let Some(sw) = l.swing.as_mut() {
+                sw.pivot = (sw.pivot.as_dvec3() - origin).as_vec3();
             }
             l
         })

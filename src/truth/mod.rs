@@ -113,6 +113,8 @@ pub fn tone_map(c: Vec3, exposure: f32) -> [u8; 4] {
 
 struct PixelContext<'a> {
     scene: &'a Scene,
+    /// The scene's lights at `time_s` (animated lights moved).
+    lights: Vec<crate::scene::Light>,
     bvh: &'a Bvh,
     max_ray_m: f32,
     time_s: f32,
@@ -151,7 +153,7 @@ impl PixelContext<'_> {
                 let depth = t * cos;
                 let origin = p + n * (2e-3 + depth * 2e-4);
                 let mut irradiance = Vec3::from(r.ambient) * std::f32::consts::PI;
-                for l in &self.scene.lights {
+                for l in &self.lights {
                     let (ld, _) = to_light(l, origin, self.max_ray_m);
                     let ndl = n.dot(ld);
                     if ndl <= 0.0 {
@@ -206,7 +208,7 @@ impl PixelContext<'_> {
             }
             let mut l_in = ambient;
             if m.scattering != Vec3::ZERO {
-                for l in &self.scene.lights {
+                for l in &self.lights {
                     let radiance = light_radiance(l, p);
                     if radiance == Vec3::ZERO {
                         continue;
@@ -250,6 +252,7 @@ pub fn render_truth(
     let (lo, hi) = scene.bounds;
     let ctx = PixelContext {
         scene,
+        lights: scene.lights_at(time_s),
         bvh,
         max_ray_m: (hi - lo).length() + 1.0,
         time_s,
