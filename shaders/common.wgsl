@@ -270,7 +270,10 @@ fn sample_media(p: vec3f) -> MediumSample {
 
 // Henyey-Greenstein; cos_theta between the light's travel direction and the scattered one.
 fn hg_phase(g: f32, cos_theta: f32) -> f32 {
-    let denom = max(1.0 + g * g - 2.0 * g * cos_theta, 1e-12);
+    // 1 + g² − 2g·cosθ as two non-negative terms (precise near g → ±1; see media.rs).
+    let d_pos = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - cos_theta);
+    let d_neg = (1.0 + g) * (1.0 + g) - 2.0 * g * (1.0 + cos_theta);
+    let denom = max(select(d_neg, d_pos, g >= 0.0), 1e-12);
     return (1.0 - g) * (1.0 + g) / (4.0 * PI * denom * sqrt(denom));
 }
 
