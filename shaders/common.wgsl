@@ -22,7 +22,8 @@ struct Frame {
     // Lights whose position, direction, cone or colour changed since the last frame
     // (bit per light): cached grid bits of these lights are stale.
     dirty_lights: u32,
-    _pad1: u32,
+    // Sparse grid: bricks in the pool.
+    pool_capacity: u32,
     _pad2: u32,
 }
 
@@ -34,6 +35,7 @@ const FLAG_MEDIA: u32 = 8u;      // the scene has participating media
 const FLAG_HISTORY: u32 = 16u;   // temporal reprojection has a valid history
 const FLAG_DEMAND: u32 = 32u;    // grid: trace only voxels that froxels requested
 const FLAG_CACHE: u32 = 64u;     // grid: keep voxels' light bits until a light changes
+const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (sparse)
 
 struct View {
     view_proj: mat4x4f,
@@ -99,6 +101,32 @@ const C_SURFACE_RAYS: u32 = 3u;
 const C_VOXELS_TRACED: u32 = 4u;
 const C_FROXELS_WITH_MEDIA: u32 = 5u;
 const C_VOXELS_NEEDED: u32 = 6u;
+const C_BRICKS: u32 = 7u;        // sparse grid: bricks requested this frame (allocation cursor)
+
+// Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a
+// table over all bricks holds 0 (unused), slot + 1 (allocated in the pool) or
+// BRICK_MISSING (requested but the pool was full). A brick is 128 words of 4 voxels.
+const BRICK: u32 = 8u;
+const BRICK_VOXELS: u32 = 512u;
+const BRICK_WORDS: u32 = 128u;
+const BRICK_MISSING: u32 = 0xffffffffu;
+
+fn brick_dims() -> vec3u {
+    return (frame.grid_dims + BRICK - 1u) / BRICK;
+}
+
+// Brick of voxel q (inside the grid).
+fn brick_of(q: vec3u) -> u32 {
+    let d = brick_dims();
+    let b = q / BRICK;
+    return b.x + d.x * (b.y + d.y * b.z);
+}
+
+// Voxel q's index inside its brick (x fastest, so 4 neighbours along x share a word).
+fn in_brick(q: vec3u) -> u32 {
+    let l = q % BRICK;
+    return l.x + BRICK * (l.y + BRICK * l.z);
+}
 
 const PI: f32 = 3.14159265358979;
 // Froxels store S / max(σt, SIGMA_EPS); below it the σt → 0 limit S·d is used.

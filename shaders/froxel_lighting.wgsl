@@ -7,15 +7,33 @@
 @group(1) @binding(1) var<storage, read> frustum: array<u32>;
 @group(1) @binding(2) var<storage, read_write> froxels: array<vec2u>;
 @group(1) @binding(3) var<storage, read> history: array<vec2u>;
+@group(1) @binding(4) var<storage, read> brick_table: array<u32>;
+
+// A voxel of a sparse grid whose brick was not allocated (pool full).
+const MASK_MISSING: u32 = 0x100u;
 
 fn grid_mask(c: vec3i) -> u32 {
     let q = vec3u(clamp(c, vec3i(0), vec3i(frame.grid_dims) - 1));
+    if (frame.flags & FLAG_SPARSE) != 0u {
+        let t = brick_table[brick_of(q)];
+        if t == 0u || t == BRICK_MISSING {
+            return MASK_MISSING;
+        }
+        let li = in_brick(q);
+        return (grid[(t - 1u) * BRICK_WORDS + li / 4u] >> (8u * (li % 4u))) & 0xffu;
+    }
     let word = grid[q.x / 4u + frame.grid_words_x * (q.y + frame.grid_dims.y * q.z)];
     return (word >> (8u * (q.x % 4u))) & 0xffu;
 }
 
+struct GridVisibility {
+    vis: array<f32, 8>,
+    // Some voxel read was not in the (sparse) grid: trace rays instead.
+    missing: bool,
+}
+
 // Visibility of each light at p from the shared grid.
-fn grid_visibility(p: vec3f) -> array<f32, 8> {
+fn grid_visibility(p: vec3f) -> GridVisibility {
     var vis: array<f32, 8>;
     let g = grid_coord(p);
     if (frame.flags & FLAG_TRILINEAR) == 0u {
@@ -23,8 +41,9 @@ fn grid_visibility(p: vec3f) -> array<f32, 8> {
         for (var li = 0u; li < 8u; li++) {
             vis[li] = f32((m >> li) & 1u);
         }
-        return vis;
+        return GridVisibility(vis, m == MASK_MISSING);
     }
+    var missing = false;
     let base = vec3i(floor(g));
     let f = g - floor(g);
     for (var k = 0u; k < 8u; k++) {
@@ -32,11 +51,12 @@ fn grid_visibility(p: vec3f) -> array<f32, 8> {
         let w3 = select(1.0 - f, f, vec3<bool>(o == vec3i(1)));
         let w = w3.x * w3.y * w3.z;
         let m = grid_mask(base + o);
+        missing = missing || m == MASK_MISSING;
         for (var li = 0u; li < 8u; li++) {
             vis[li] += w * f32((m >> li) & 1u);
         }
     }
-    return vis;
+    return GridVisibility(vis, missing);
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -56,15 +76,9 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
             var out = vec4f(0.0);
             if m.extinction > 0.0 || any(m.emission > vec3f(0.0)) {
                 var vis: array<f32, 8>;
-                if (frame.flags & FLAG_SHARED) == 0u {
-                    for (var li = 0u; li < frame.light_count; li++) {
-                        let l = lights[li];
-                        if all(light_radiance(l, p) == vec3f(0.0)) {
-                            continue;
-                        }
-                        rays += 1u;
-                        vis[li] = select(0.0, 1.0, light_visible(l, p));
-                    }
+                var trace = (frame.flags & FLAG_SHARED) == 0u;
+                if trace {
+                    // reference: traced below
                 } else if slice < frame.frustum_slices {
                     let fx = min(gid.x * v.froxel_px / v.frustum_px, v.frustum_dims.x - 1u);
                     let fy = min(gid.y * v.froxel_px / v.frustum_px, v.frustum_dims.y - 1u);
@@ -73,7 +87,20 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
                         vis[li] = f32((mask >> li) & 1u);
                     }
                 } else {
-                    vis = grid_visibility(p);
+                    let gv = grid_visibility(p);
+                    vis = gv.vis;
+                    trace = gv.missing;
+                }
+                if trace {
+                    for (var li = 0u; li < frame.light_count; li++) {
+                        let l = lights[li];
+                        vis[li] = 0.0;
+                        if all(light_radiance(l, p) == vec3f(0.0)) {
+                            continue;
+                        }
+                        rays += 1u;
+                        vis[li] = select(0.0, 1.0, light_visible(l, p));
+                    }
                 }
                 // Stored as the source radiance S/σt (what an optically thick froxel converges
                 // to), which stays within f16 range for σt up to 10⁴ m⁻¹.

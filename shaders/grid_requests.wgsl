@@ -3,8 +3,35 @@
 // read the shared grid marks the voxels its lookup reads — the nearest voxel, or the 8
 // trilinear neighbours — and only marked voxels are traced. Froxels outside every
 // medium mark nothing. All viewers in one dispatch; z runs over viewers × grid slices.
+//
+// Dense grid (`main`): one u32 per voxel. Sparse grid: `mark_bricks` flags the bricks
+// the froxels read, `allocate` gives each flagged brick a pool slot, `mark_voxels`
+// sets the read voxels' bits (512 per brick) in the slot's request words.
 
-@group(1) @binding(0) var<storage, read_write> requests: array<u32>;
+@group(1) @binding(0) var<storage, read_write> requests: array<atomic<u32>>;
+@group(1) @binding(1) var<storage, read_write> brick_table: array<u32>;
+@group(1) @binding(2) var<storage, read_write> slot_brick: array<u32>;
+
+const PHASE_DENSE: u32 = 0u;
+const PHASE_BRICKS: u32 = 1u;
+const PHASE_VOXELS: u32 = 2u;
+
+var<private> phase: u32;
+
+fn request(c: vec3i) {
+    let q = vec3u(clamp(c, vec3i(0), vec3i(frame.grid_dims) - 1));
+    if phase == PHASE_DENSE {
+        atomicStore(&requests[q.x + frame.grid_dims.x * (q.y + frame.grid_dims.y * q.z)], 1u);
+    } else if phase == PHASE_BRICKS {
+        brick_table[brick_of(q)] = BRICK_MISSING;
+    } else {
+        let t = brick_table[brick_of(q)];
+        if t != 0u && t != BRICK_MISSING {
+            let bit = (t - 1u) * BRICK_VOXELS + in_brick(q);
+            atomicOr(&requests[bit / 32u], 1u << (bit % 32u));
+        }
+    }
+}
 
 // Whether any medium can have density at `p`: its shape contains `p`. Noise scales the
 // density by max(1 + a·(2·fbm − 1), 0) with fbm in [0, 1], which is zero only for
@@ -31,8 +58,7 @@ fn may_have_media(p: vec3f) -> bool {
     return false;
 }
 
-@compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u) {
+fn request_froxel(gid: vec3u) {
     let grid_slices = frame.slices - frame.frustum_slices;
     let view_index = gid.z / grid_slices;
     let slice = frame.frustum_slices + gid.z % grid_slices;
@@ -43,15 +69,48 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
             if may_have_media(p) {
                 let g = grid_coord(p);
                 if (frame.flags & FLAG_TRILINEAR) == 0u {
-                    requests[voxel_index(vec3i(floor(g + 0.5)))] = 1u;
+                    request(vec3i(floor(g + 0.5)));
                 } else {
                     let base = vec3i(floor(g));
                     for (var k = 0u; k < 8u; k++) {
-                        let o = vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
-                        requests[voxel_index(base + o)] = 1u;
+                        request(base + vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u)));
                     }
                 }
             }
+        }
+    }
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3u) {
+    phase = PHASE_DENSE;
+    request_froxel(gid);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn mark_bricks(@builtin(global_invocation_id) gid: vec3u) {
+    phase = PHASE_BRICKS;
+    request_froxel(gid);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn mark_voxels(@builtin(global_invocation_id) gid: vec3u) {
+    phase = PHASE_VOXELS;
+    request_froxel(gid);
+}
+
+// One invocation per brick (2D dispatch: x + y·64·workgroups_x): a flagged brick takes
+// the next pool slot; when the pool is full it stays BRICK_MISSING and the froxels that
+// read it trace their own shadow rays (exact, only slower).
+@compute @workgroup_size(64, 1, 1)
+fn allocate(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) n: vec3u) {
+    let d = brick_dims();
+    let b = gid.x + gid.y * n.x * 64u;
+    if b < d.x * d.y * d.z && brick_table[b] == BRICK_MISSING {
+        let slot = atomicAdd(&counters[C_BRICKS], 1u);
+        if slot < frame.pool_capacity {
+            brick_table[b] = slot + 1u;
+            slot_brick[slot] = b;
         }
     }
 }

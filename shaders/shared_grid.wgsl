@@ -11,6 +11,24 @@
 @group(1) @binding(1) var<storage, read_write> touched: array<atomic<u32>>;
 @group(1) @binding(2) var<storage, read> requests: array<u32>;
 @group(1) @binding(3) var<storage, read_write> valid: array<u32>;
+@group(1) @binding(4) var<storage, read> slot_brick: array<u32>;
+
+// Traces every light (with radiance) from the centre of voxel q; the light bitmask.
+fn trace_voxel(q: vec3u, rays: ptr<function, u32>) -> u32 {
+    let centre = frame.grid_min + (vec3f(q) + 0.5) * frame.voxel_size;
+    var mask = 0u;
+    for (var li = 0u; li < frame.light_count; li++) {
+        let l = lights[li];
+        if all(light_radiance(l, centre) == vec3f(0.0)) {
+            continue;
+        }
+        *rays += 1u;
+        if light_visible(l, centre) {
+            mask |= 1u << li;
+        }
+    }
+    return mask;
+}
 
 // Sphere (centre c, radius r) against the frustum of view v, exact plane distances.
 fn sphere_in_view(v: View, c: vec3f, r: f32) -> bool {
@@ -105,4 +123,37 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
     count(C_GRID_RAYS, rays);
     count(C_VOXELS_TRACED, countOneBits(traced));
     count(C_VOXELS_NEEDED, needed);
+}
+
+// Sparse grid update: one invocation per pool word (2D dispatch: x + y·64·workgroups_x);
+// words of allocated bricks trace their requested voxels (the request bits set by
+// grid_requests.wgsl's `mark_voxels`). Bricks are allocated afresh every frame; the
+// allocation cursor (bricks requested) is `counters[C_BRICKS]`.
+@compute @workgroup_size(64, 1, 1)
+fn update_sparse(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) n: vec3u) {
+    var rays = 0u;
+    var traced = 0u;
+    let id = gid.x + gid.y * n.x * 64u;
+    let slot = id / BRICK_WORDS;
+    let allocated = min(atomicLoad(&counters[C_BRICKS]), frame.pool_capacity);
+    if slot < allocated {
+        let d = brick_dims();
+        let b = slot_brick[slot];
+        let origin = vec3u(b % d.x, (b / d.x) % d.y, b / (d.x * d.y)) * BRICK;
+        var word = 0u;
+        for (var i = 0u; i < 4u; i++) {
+            let li = (id % BRICK_WORDS) * 4u + i;
+            let q = origin + vec3u(li % BRICK, (li / BRICK) % BRICK, li / (BRICK * BRICK));
+            let bit = slot * BRICK_VOXELS + li;
+            if any(q >= frame.grid_dims) || ((requests[bit / 32u] >> (bit % 32u)) & 1u) == 0u {
+                continue;
+            }
+            word |= trace_voxel(q, &rays) << (8u * i);
+            traced += 1u;
+        }
+        grid[id] = word;
+    }
+    count(C_GRID_RAYS, rays);
+    count(C_VOXELS_TRACED, traced);
+    count(C_VOXELS_NEEDED, traced);
 }

@@ -106,6 +106,10 @@ struct SettingsArgs {
     /// Temporal shadow caching: keep voxels' light bits until the light moves.
     #[arg(long)]
     cache: bool,
+    /// Sparse grid: bricks of 8³ voxels allocated where froxels read, from a pool of
+    /// this many bricks (0: dense grid over the whole media box). Implies --demand.
+    #[arg(long, default_value_t = 0)]
+    brick_pool: u32,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -140,6 +144,7 @@ impl SettingsArgs {
             depth_curve: self.depth_curve,
             demand: self.demand,
             cache: self.cache,
+            brick_pool: self.brick_pool,
         }
     }
 }

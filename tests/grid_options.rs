@@ -143,3 +143,96 @@ fn cached_grid_equals_a_fresh_one_after_a_light_moves() {
         assert_eq!(x, y, "cached and fresh frames differ");
     }
 }
+
+#[test]
+fn sparse_bricks_give_the_dense_demand_driven_image() {
+    let scene = Arc::new(Scene::load("colonnade").unwrap());
+    let cams = scene.camera.viewers(2, 1.0);
+    let mut dense = Renderer::new(gpu(), scene.clone(), settings(true, false)).unwrap();
+    let sparse_settings = Settings {
+        brick_pool: 4096,
+        ..settings(false, false)
+    };
+    let mut sparse = Renderer::new(gpu(), scene.clone(), sparse_settings).unwrap();
+    let a = render(&mut dense, &cams, 1.0);
+    let b = render(&mut sparse, &cams, 1.0);
+    println!(
+        "dense: {} grid rays, {} B; sparse: {} grid rays, {} bricks of {}, {} B",
+        a.stats.rays.shared_grid,
+        a.stats.memory.shared_total,
+        b.stats.rays.shared_grid,
+        b.stats.grid_bricks_requested,
+        b.stats.grid_pool_bricks,
+        b.stats.memory.shared_total
+    );
+    assert_eq!(a.stats.rays.shared_grid, b.stats.rays.shared_grid);
+    assert!(b.stats.grid_bricks_requested > 0 && b.stats.grid_bricks_requested <= 4096);
+    assert_eq!(
+        b.stats.rays.froxel_lighting, 0,
+        "every brick fitted in the pool"
+    );
+    assert_eq!(a.images, b.images);
+}
+
+#[test]
+fn islands_at_an_eighth_of_a_metre_fits_only_as_sparse_bricks() {
+    let scene = Arc::new(Scene::load("islands").unwrap());
+    let dense = Settings {
+        voxel_size_m: 0.125,
+        ..settings(true, false)
+    };
+    let err = Renderer::new(gpu(), scene.clone(), dense)
+        .err()
+        .expect("a dense 0.125 m grid over islands does not fit");
+    println!("dense: {err:#}");
+    assert!(
+        format!("{err:#}").contains("--brick-pool"),
+        "the error names the way out"
+    );
+
+    let sparse = Settings {
+        brick_pool: 65536,
+        ..dense
+    };
+    let cams = scene.camera.viewers(2, 3.0);
+    let (w, h) = (96, 54);
+    let out = Renderer::new(gpu(), scene.clone(), sparse)
+        .unwrap()
+        .render(&cams, w, h, 3.0)
+        .unwrap();
+    let s = &out.stats;
+    println!(
+        "sparse: {} of {} bricks requested, shared memory {:.1} MiB vs dense masks {:.1} MiB; {} grid rays, {} fallback rays",
+        s.grid_bricks_requested,
+        s.grid_pool_bricks,
+        s.memory.shared_total as f64 / 1048576.0,
+        s.grid_dense_bytes as f64 / 1048576.0,
+        s.rays.shared_grid,
+        s.rays.froxel_lighting
+    );
+    assert!(
+        s.grid_dense_bytes > 512 << 20,
+        "the dense grid would be > 512 MiB"
+    );
+    assert!(
+        s.memory.shared_total < 128 << 20,
+        "sparse stays under 128 MiB"
+    );
+    assert!(s.rays.shared_grid > 0);
+    let reference = Renderer::new(
+        gpu(),
+        scene.clone(),
+        Settings {
+            mode: Mode::Reference,
+            ..sparse
+        },
+    )
+    .unwrap()
+    .render(&cams, w, h, 3.0)
+    .unwrap();
+    for (i, (a, b)) in reference.images.iter().zip(&out.images).enumerate() {
+        let e = fogcast::metrics::compare(a, b, w, h).unwrap();
+        println!("viewer {i}: FLIP vs reference {:.4}", e.flip_mean);
+        assert!(e.flip_mean <= 0.05, "viewer {i}: FLIP {}", e.flip_mean);
+    }
+}

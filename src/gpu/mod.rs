@@ -159,12 +159,23 @@ impl GpuContext {
             })
     }
 
-    /// A compute pipeline with an explicit layout.
+    /// A compute pipeline with an explicit layout, entry point `main`.
     pub fn compute_pipeline(
         &self,
         label: &str,
         module: &wgpu::ShaderModule,
         layouts: &[&wgpu::BindGroupLayout],
+    ) -> wgpu::ComputePipeline {
+        self.compute_pipeline_entry(label, module, layouts, "main")
+    }
+
+    /// A compute pipeline with an explicit layout and entry point.
+    pub fn compute_pipeline_entry(
+        &self,
+        label: &str,
+        module: &wgpu::ShaderModule,
+        layouts: &[&wgpu::BindGroupLayout],
+        entry: &str,
     ) -> wgpu::ComputePipeline {
         let layouts: Vec<Option<&wgpu::BindGroupLayout>> =
             layouts.iter().map(|l| Some(*l)).collect();
@@ -180,7 +191,7 @@ impl GpuContext {
                 label: Some(label),
                 layout: Some(&layout),
                 module,
-                entry_point: Some("main"),
+                entry_point: Some(entry),
                 compilation_options: Default::default(),
                 cache: None,
             })

@@ -12,7 +12,7 @@ pub(crate) struct FroxelLighting {
 
 impl FroxelLighting {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ctx.storage_layout("froxel lighting", &[false, false, true, false]);
+        let layout = ctx.storage_layout("froxel lighting", &[false, false, true, false, false]);
         let module = super::stage_shader(
             ctx,
             "froxel_lighting",
@@ -45,6 +45,7 @@ impl FroxelLighting {
     ) {
         // In reference mode the grid binding is unused; the frustum buffer stands in.
         let grid_buffer = grid.map_or(&volumes.frustum, |g| &g.grid);
+        let bricks = grid.map_or(&volumes.frustum, |g| &g.brick_table);
         let bg = ctx.bind_buffers(
             "froxel lighting",
             &self.layout,
@@ -53,6 +54,7 @@ impl FroxelLighting {
                 &volumes.frustum,
                 &volumes.froxels,
                 &volumes.froxel_history,
+                bricks,
             ],
         );
         let mut pass = compute_pass(enc, "froxel_lighting", ts.writes(Stage::FroxelLighting));

@@ -10,6 +10,7 @@ pub(crate) const FLAG_MEDIA: u32 = 8;
 pub(crate) const FLAG_HISTORY: u32 = 16;
 pub(crate) const FLAG_DEMAND: u32 = 32;
 pub(crate) const FLAG_CACHE: u32 = 64;
+pub(crate) const FLAG_SPARSE: u32 = 128;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 8;
@@ -20,6 +21,7 @@ pub(crate) const C_SURFACE_RAYS: usize = 3;
 pub(crate) const C_VOXELS_TRACED: usize = 4;
 pub(crate) const C_FROXELS_WITH_MEDIA: usize = 5;
 pub(crate) const C_VOXELS_NEEDED: usize = 6;
+pub(crate) const C_BRICKS: usize = 7;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -42,7 +44,8 @@ pub(crate) struct FrameGpu {
     pub slices: u32,
     pub depth_curve: f32,
     pub dirty_lights: u32,
-    pub _pad: [u32; 2],
+    pub pool_capacity: u32,
+    pub _pad: u32,
 }
 
 #[repr(C)]

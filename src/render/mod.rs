@@ -91,6 +91,12 @@ pub struct Settings {
     /// until that light changes, so a static scene traces each voxel once.
     #[serde(default)]
     pub cache: bool,
+    /// Sparse grid (paper 000 §5.1, beyond its implementation): bricks of 8³ voxels
+    /// allocated each frame where froxels read, from a pool of this many bricks
+    /// (0: a dense grid over the whole media box). Implies `demand`; not with `cache`.
+    /// A froxel whose brick did not fit in the pool traces its own rays.
+    #[serde(default)]
+    pub brick_pool: u32,
 }
 
 impl Default for Settings {
@@ -108,6 +114,7 @@ impl Default for Settings {
             depth_curve: 4.0,
             demand: false,
             cache: false,
+            brick_pool: 0,
         }
     }
 }
@@ -139,6 +146,15 @@ impl Settings {
             (0.0..=1.0).contains(&self.frustum_slice_fraction),
             "shadow frustum slice fraction {}: must be 0..=1",
             self.frustum_slice_fraction
+        );
+        anyhow::ensure!(
+            self.brick_pool <= 1 << 20,
+            "brick pool {}: at most 1048576 bricks",
+            self.brick_pool
+        );
+        anyhow::ensure!(
+            !(self.cache && self.brick_pool > 0),
+            "temporal caching keeps bits in a dense grid: use either cache or a brick pool (sparse), not both"
         );
         anyhow::ensure!(
             self.depth_curve.is_finite() && (0.01..=20.0).contains(&self.depth_curve),
@@ -182,10 +198,22 @@ pub(crate) struct Timestamps {
 
 impl Timestamps {
     fn writes(&self, stage: Stage) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
-        self.set.as_ref().map(|q| wgpu::ComputePassTimestampWrites {
+        self.span_writes(stage, true, true)
+    }
+
+    /// Timestamps for one of several passes of a stage: its start on the first, its end
+    /// on the last.
+    fn span_writes(
+        &self,
+        stage: Stage,
+        first: bool,
+        last: bool,
+    ) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
+        let q = self.set.as_ref()?;
+        (first || last).then_some(wgpu::ComputePassTimestampWrites {
             query_set: q,
-            beginning_of_pass_write_index: Some(stage as u32 * 2),
-            end_of_pass_write_index: Some(stage as u32 * 2 + 1),
+            beginning_of_pass_write_index: first.then_some(stage as u32 * 2),
+            end_of_pass_write_index: last.then_some(stage as u32 * 2 + 1),
         })
     }
 
@@ -286,8 +314,9 @@ impl Renderer {
                     bounds,
                     settings.voxel_size_m,
                     shared_grid::UpdatePolicy {
-                        demand: settings.demand,
+                        demand: settings.demand || settings.brick_pool > 0,
                         cache: settings.cache,
+                        brick_pool: settings.brick_pool,
                     },
                 )?)
             }
@@ -456,8 +485,11 @@ impl Renderer {
         if history {
             flags |= FLAG_HISTORY;
         }
-        if s.demand {
+        if s.demand || s.brick_pool > 0 {
             flags |= FLAG_DEMAND;
+        }
+        if s.brick_pool > 0 {
+            flags |= FLAG_SPARSE;
         }
         if s.cache {
             flags |= FLAG_CACHE;
@@ -504,7 +536,8 @@ impl Renderer {
             slices: s.slices,
             depth_curve: s.depth_curve,
             dirty_lights,
-            _pad: [0; 2],
+            pool_capacity: s.brick_pool,
+            _pad: 0,
         };
         self.scene_gpu.ensure_views(&self.ctx, cameras.len())?;
         self.ctx
@@ -574,8 +607,8 @@ impl Renderer {
         if has_media {
             if shared && has_lights {
                 if let Some(grid) = &self.grid {
-                    if self.settings.demand
-                        && grid.add_request_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps)
+                    if (self.settings.demand || grid.is_sparse())
+                        && grid.add_request_passes(&ctx, &mut enc, scene_bg, vol, &self.timestamps)
                     {
                         dispatches
                             .push(("grid_requests", SharedShadowGrid::request_workgroups(vol)));

@@ -1,36 +1,83 @@
 //! Stage 1 (paper 000 §3.1.1): the shared world-space shadow grid, with
-//! `shaders/shared_grid.wgsl`. World-space work: it never loops over viewers' pixels.
+//! `shaders/shared_grid.wgsl` and `shaders/grid_requests.wgsl`. World-space work: the
+//! update never loops over viewers' pixels.
+//!
+//! Three ways to decide what to trace (see [`UpdatePolicy`]): the paper's frustum-gated
+//! update, fogcast's demand-driven update (froxels request the voxels they read), and on
+//! top of either temporal caching. Storage is dense (the whole media box) or sparse:
+//! bricks of 8³ voxels allocated each frame where froxels read (paper §5.1).
 
 use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::GpuContext;
 use glam::{UVec3, Vec3};
 
-/// The shared grid: one 8-bit light bitmask per voxel, 4 voxels per u32 word along x.
+/// Voxels per brick edge (`BRICK` in common.wgsl).
+const BRICK: u32 = 8;
+/// u32 words per brick: 512 voxels, 4 per word.
+const BRICK_WORDS: u64 = 128;
+
+/// The shared grid: one 8-bit light bitmask per voxel, 4 voxels per u32 word.
 pub struct SharedShadowGrid {
     pub(crate) min: Vec3,
     pub(crate) voxel_size_m: f32,
     pub(crate) dims: UVec3,
     pub(crate) words_x: u32,
+    /// Dense: the words of the whole grid (4 voxels along x each). Sparse: the brick pool.
     pub(crate) grid: wgpu::Buffer,
-    /// One nibble per word: which of its 4 voxels were traced this frame.
+    /// One nibble per word: which of its 4 voxels were traced this frame (dense only).
     pub(crate) touched: wgpu::Buffer,
-    /// Demand-driven update: one u32 per voxel, non-zero when a froxel will read it.
+    /// Demand-driven update. Dense: one u32 per voxel, non-zero when a froxel reads it.
+    /// Sparse: one bit per pool voxel.
     pub(crate) requests: wgpu::Buffer,
     /// Temporal caching: which light bits of each voxel are current (grid layout).
     pub(crate) valid: wgpu::Buffer,
+    /// Sparse: one u32 per brick of the whole grid (0, pool slot + 1, or missing).
+    pub(crate) brick_table: wgpu::Buffer,
+    /// Sparse: the brick of each pool slot.
+    slot_brick: wgpu::Buffer,
+    policy: UpdatePolicy,
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    sparse_pipeline: wgpu::ComputePipeline,
     request_layout: wgpu::BindGroupLayout,
-    request_pipeline: wgpu::ComputePipeline,
+    request_pipelines: RequestPipelines,
 }
 
-/// How the grid pass decides which voxels to trace.
+struct RequestPipelines {
+    dense: wgpu::ComputePipeline,
+    mark_bricks: wgpu::ComputePipeline,
+    allocate: wgpu::ComputePipeline,
+    mark_voxels: wgpu::ComputePipeline,
+}
+
+/// How the grid pass decides which voxels to trace, and how the grid is stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct UpdatePolicy {
     /// Only voxels requested by froxels (else every voxel in some frustum).
     pub demand: bool,
-    /// Keep light bits across frames until the light changes.
+    /// Keep light bits across frames until the light changes (dense only).
     pub cache: bool,
+    /// Sparse bricks with a pool of this many bricks (0: dense). Implies `demand`.
+    pub brick_pool: u32,
+}
+
+impl UpdatePolicy {
+    fn sparse(&self) -> bool {
+        self.brick_pool > 0
+    }
+}
+
+fn grid_dims(bounds: (Vec3, Vec3), voxel_size_m: f32) -> (UVec3, Vec3) {
+    let extent = (bounds.1 - bounds.0).max(Vec3::splat(voxel_size_m));
+    let dims = (extent / voxel_size_m).ceil().as_uvec3().max(UVec3::ONE);
+    (dims, extent)
+}
+
+/// A 2D dispatch of 64-wide workgroups covering `n` invocations (x + y·64·groups_x).
+fn dispatch_1d(n: u64) -> [u32; 3] {
+    let groups = n.div_ceil(64).max(1);
+    let x = groups.min(32768);
+    [x as u32, groups.div_ceil(x) as u32, 1]
 }
 
 impl SharedShadowGrid {
@@ -42,26 +89,41 @@ impl SharedShadowGrid {
         voxel_size_m: f32,
         policy: UpdatePolicy,
     ) -> anyhow::Result<Self> {
-        let extent = (bounds.1 - bounds.0).max(Vec3::splat(voxel_size_m));
-        let dims = (extent / voxel_size_m).ceil().as_uvec3().max(UVec3::ONE);
+        let (dims, extent) = grid_dims(bounds, voxel_size_m);
         let voxels = dims.x as u64 * dims.y as u64 * dims.z as u64;
         let words_x = dims.x.div_ceil(4);
         let words = words_x as u64 * dims.y as u64 * dims.z as u64;
-        // Request and validity buffers exist only for the options that use them (a
-        // 16-byte stand-in keeps the bind group valid otherwise).
-        let request_bytes = if policy.demand { voxels * 4 } else { 16 };
-        let valid_bytes = if policy.cache { words * 4 } else { 16 };
+        let bricks = (dims.x.div_ceil(BRICK) as u64)
+            * (dims.y.div_ceil(BRICK) as u64)
+            * (dims.z.div_ceil(BRICK) as u64);
+        let pool = policy.brick_pool as u64;
+        // Buffers exist only for the options that use them (a 16-byte stand-in keeps
+        // the bind groups valid otherwise).
+        let (grid_bytes, request_bytes, table_bytes) = if policy.sparse() {
+            (pool * BRICK_WORDS * 4, pool * BRICK_WORDS, bricks * 4)
+        } else if policy.demand {
+            (words * 4, voxels * 4, 16)
+        } else {
+            (words * 4, 16, 16)
+        };
+        let valid_bytes = if policy.cache && !policy.sparse() {
+            words * 4
+        } else {
+            16
+        };
+        let largest = grid_bytes.max(request_bytes).max(table_bytes);
         anyhow::ensure!(
-            words * 4 <= ctx.max_storage_binding && request_bytes <= ctx.max_storage_binding,
-            "a {voxel_size_m} m shadow grid over {extent:?} m is {}×{}×{} = {voxels} voxels ({:.0} MiB), more than the adapter can bind ({:.0} MiB): use a larger --voxel-size",
+            largest <= ctx.max_storage_binding,
+            "a {voxel_size_m} m shadow grid over {extent:?} m is {}×{}×{} = {voxels} voxels; its largest buffer is {:.0} MiB, more than the adapter can bind ({:.0} MiB): use a larger --voxel-size{}",
             dims.x,
             dims.y,
             dims.z,
-            (words * 4).max(request_bytes) as f64 / 1048576.0,
-            ctx.max_storage_binding as f64 / 1048576.0
+            largest as f64 / 1048576.0,
+            ctx.max_storage_binding as f64 / 1048576.0,
+            if policy.sparse() { "" } else { " or a sparse grid (--brick-pool N)" }
         );
-        let layout = ctx.storage_layout("shared grid", &[true, true, false, true]);
-        let request_layout = ctx.storage_layout("grid requests", &[true]);
+        let layout = ctx.storage_layout("shared grid", &[true, true, false, true, false]);
+        let request_layout = ctx.storage_layout("grid requests", &[true, true, true]);
         let request_module = super::stage_shader(
             ctx,
             "grid_requests",
@@ -72,31 +134,80 @@ impl SharedShadowGrid {
             "shared_grid",
             include_str!("../../shaders/shared_grid.wgsl"),
         );
+        let request = |entry: &str| {
+            ctx.compute_pipeline_entry(
+                entry,
+                &request_module,
+                &[scene_layout, &request_layout],
+                entry,
+            )
+        };
+        let storage =
+            |label: &str, bytes: u64| ctx.storage(label, bytes, wgpu::BufferUsages::empty());
         Ok(SharedShadowGrid {
             min: bounds.0,
             voxel_size_m,
             dims,
             words_x,
-            grid: ctx.storage("shared grid", words * 4, wgpu::BufferUsages::empty())?,
-            touched: ctx.storage(
+            grid: storage("shared grid", grid_bytes)?,
+            touched: storage(
                 "shared grid touched",
-                words.div_ceil(8) * 4,
-                wgpu::BufferUsages::empty(),
+                if policy.sparse() {
+                    16
+                } else {
+                    words.div_ceil(8) * 4
+                },
             )?,
-            requests: ctx.storage("grid requests", request_bytes, wgpu::BufferUsages::empty())?,
-            valid: ctx.storage("grid valid bits", valid_bytes, wgpu::BufferUsages::empty())?,
+            requests: storage("grid requests", request_bytes)?,
+            valid: storage("grid valid bits", valid_bytes)?,
+            brick_table: storage("grid brick table", table_bytes)?,
+            slot_brick: storage("grid brick slots", (pool * 4).max(16))?,
+            policy,
             pipeline: ctx.compute_pipeline("shared_grid", &module, &[scene_layout, &layout]),
-            layout,
-            request_pipeline: ctx.compute_pipeline(
-                "grid_requests",
-                &request_module,
-                &[scene_layout, &request_layout],
+            sparse_pipeline: ctx.compute_pipeline_entry(
+                "shared_grid_sparse",
+                &module,
+                &[scene_layout, &layout],
+                "update_sparse",
             ),
+            layout,
+            request_pipelines: RequestPipelines {
+                dense: request("main"),
+                mark_bricks: request("mark_bricks"),
+                allocate: request("allocate"),
+                mark_voxels: request("mark_voxels"),
+            },
             request_layout,
         })
     }
 
+    /// Bricks of 8³ voxels over the whole grid.
+    fn bricks(&self) -> u64 {
+        (self.dims.x.div_ceil(BRICK) as u64)
+            * (self.dims.y.div_ceil(BRICK) as u64)
+            * (self.dims.z.div_ceil(BRICK) as u64)
+    }
+
+    /// Whether the grid is stored as sparse bricks.
+    pub(crate) fn is_sparse(&self) -> bool {
+        self.policy.sparse()
+    }
+
+    /// Bricks in the sparse pool (0 when dense).
+    pub(crate) fn pool_capacity(&self) -> u32 {
+        self.policy.brick_pool
+    }
+
+    /// Bytes the light masks of a dense grid over the same box take (for reports).
+    pub(crate) fn dense_bytes(&self) -> u64 {
+        self.words_x as u64 * self.dims.y as u64 * self.dims.z as u64 * 4
+    }
+
+    /// Dispatch size of the update pass.
     pub(crate) fn workgroups(&self) -> [u32; 3] {
+        if self.policy.sparse() {
+            return dispatch_1d(self.policy.brick_pool as u64 * BRICK_WORDS);
+        }
         [
             self.words_x.div_ceil(4),
             self.dims.y.div_ceil(4),
@@ -104,7 +215,7 @@ impl SharedShadowGrid {
         ]
     }
 
-    /// Dispatch size of the request pass: froxel tiles × (viewers × grid slices).
+    /// Dispatch size of a request pass: froxel tiles × (viewers × grid slices).
     pub(crate) fn request_workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
         let [x, y] = volumes.layout.froxel_dims;
         [
@@ -114,9 +225,10 @@ impl SharedShadowGrid {
         ]
     }
 
-    /// Records the froxels' voxel requests (demand-driven update); returns false when no
-    /// slice reads the grid (the shadow frustum covers them all) and nothing was recorded.
-    pub(crate) fn add_request_pass(
+    /// Records the froxels' voxel requests (demand-driven update; for a sparse grid also
+    /// the brick allocation); returns false when no slice reads the grid (the shadow
+    /// frustum covers them all) and nothing was recorded.
+    pub(crate) fn add_request_passes(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
@@ -125,16 +237,40 @@ impl SharedShadowGrid {
         ts: &Timestamps,
     ) -> bool {
         enc.clear_buffer(&self.requests, 0, None);
+        if self.policy.sparse() {
+            enc.clear_buffer(&self.brick_table, 0, None);
+        }
         if volumes.slices <= volumes.frustum_slices {
             return false;
         }
-        let bg = ctx.bind_buffers("grid requests", &self.request_layout, &[&self.requests]);
-        let mut pass = compute_pass(enc, "grid_requests", ts.writes(Stage::GridRequests));
-        pass.set_pipeline(&self.request_pipeline);
-        pass.set_bind_group(0, scene, &[]);
-        pass.set_bind_group(1, &bg, &[]);
-        let [x, y, z] = Self::request_workgroups(volumes);
-        pass.dispatch_workgroups(x, y, z);
+        let bg = ctx.bind_buffers(
+            "grid requests",
+            &self.request_layout,
+            &[&self.requests, &self.brick_table, &self.slot_brick],
+        );
+        let froxels = Self::request_workgroups(volumes);
+        let p = &self.request_pipelines;
+        let passes: Vec<(&wgpu::ComputePipeline, [u32; 3])> = if self.policy.sparse() {
+            vec![
+                (&p.mark_bricks, froxels),
+                (&p.allocate, dispatch_1d(self.bricks())),
+                (&p.mark_voxels, froxels),
+            ]
+        } else {
+            vec![(&p.dense, froxels)]
+        };
+        let last = passes.len() - 1;
+        for (i, (pipeline, [x, y, z])) in passes.into_iter().enumerate() {
+            let mut pass = compute_pass(
+                enc,
+                "grid_requests",
+                ts.span_writes(Stage::GridRequests, i == 0, i == last),
+            );
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, scene, &[]);
+            pass.set_bind_group(1, &bg, &[]);
+            pass.dispatch_workgroups(x, y, z);
+        }
         true
     }
 
@@ -150,18 +286,39 @@ impl SharedShadowGrid {
         let bg = ctx.bind_buffers(
             "shared grid",
             &self.layout,
-            &[&self.grid, &self.touched, &self.requests, &self.valid],
+            &[
+                &self.grid,
+                &self.touched,
+                &self.requests,
+                &self.valid,
+                &self.slot_brick,
+            ],
         );
         let mut pass = compute_pass(enc, "shared_grid", ts.writes(Stage::SharedGrid));
-        pass.set_pipeline(&self.pipeline);
+        pass.set_pipeline(if self.policy.sparse() {
+            &self.sparse_pipeline
+        } else {
+            &self.pipeline
+        });
         pass.set_bind_group(0, scene, &[]);
         pass.set_bind_group(1, &bg, &[]);
         let [x, y, z] = self.workgroups();
         pass.dispatch_workgroups(x, y, z);
     }
 
-    /// Bytes of the grid, its touched bits, request and validity buffers.
+    /// Bytes of every grid buffer (words or pool, touched bits, requests, validity,
+    /// brick table and slots).
     pub(crate) fn bytes(&self) -> u64 {
-        self.grid.size() + self.touched.size() + self.requests.size() + self.valid.size()
+        [
+            &self.grid,
+            &self.touched,
+            &self.requests,
+            &self.valid,
+            &self.brick_table,
+            &self.slot_brick,
+        ]
+        .iter()
+        .map(|b| b.size())
+        .sum()
     }
 }

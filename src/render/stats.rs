@@ -74,6 +74,14 @@ pub struct FrameStats {
     pub voxels_needed: u64,
     /// Froxels with non-zero media (the rest skip shadow work).
     pub froxels_with_media: u64,
+    /// Bytes of the light masks of a dense grid over the media box (what a sparse grid
+    /// avoids; equal to the grid's words when dense).
+    pub grid_dense_bytes: u64,
+    /// Sparse grid: bricks in the pool (0: dense grid).
+    pub grid_pool_bricks: u64,
+    /// Sparse grid: bricks the froxels read this frame; those beyond the pool were not
+    /// stored, and their froxels traced their own rays.
+    pub grid_bricks_requested: u64,
     /// Shared grid dimensions (0 when there is no grid).
     pub grid_dims: [u32; 3],
     /// Workgroups of every dispatch that ran.
@@ -143,6 +151,13 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         voxels_traced: c(C_VOXELS_TRACED),
         voxels_needed: c(C_VOXELS_NEEDED),
         froxels_with_media: c(C_FROXELS_WITH_MEDIA),
+        grid_dense_bytes: i.grid.map_or(0, |g| g.dense_bytes()),
+        grid_pool_bricks: i.grid.map_or(0, |g| g.pool_capacity() as u64),
+        grid_bricks_requested: if i.grid.is_some_and(|g| g.is_sparse()) {
+            c(C_BRICKS)
+        } else {
+            0
+        },
         grid_dims: i.grid.map_or([0; 3], |g| g.dims.to_array()),
         dispatches: i
             .dispatches
