@@ -43,16 +43,27 @@ fn ray_triangle(o: vec3f, d: vec3f, t_min: f32, t_max: f32, tri: BvhTriangle) ->
     return t > t_min && t < t_max;
 }
 
-// True when something blocks the segment o + t·d, t in (t_min, t_max).
+// True when the static scene blocks the segment o + t·d, t in (t_min, t_max).
 fn occluded(o: vec3f, d: vec3f, t_min: f32, t_max: f32) -> bool {
-    let root = bvh_nodes[0];
-    if root.min.x > root.max.x {
-        return false; // empty scene
-    }
     let inv_d = 1.0 / select(d, vec3f(1e-30), abs(d) < vec3f(1e-30));
+    return occluded_in(0u, o, d, inv_d, t_min, t_max);
+}
+
+// As `occluded`, then the movers' tree (frame.mover_root), if the scene has movers.
+fn occluded_with_movers(o: vec3f, d: vec3f, t_min: f32, t_max: f32) -> bool {
+    let inv_d = 1.0 / select(d, vec3f(1e-30), abs(d) < vec3f(1e-30));
+    return occluded_in(0u, o, d, inv_d, t_min, t_max)
+        || (frame.mover_root != 0xffffffffu && occluded_in(frame.mover_root, o, d, inv_d, t_min, t_max));
+}
+
+fn occluded_in(root_index: u32, o: vec3f, d: vec3f, inv_d: vec3f, t_min: f32, t_max: f32) -> bool {
+    let root = bvh_nodes[root_index];
+    if root.min.x > root.max.x {
+        return false; // empty tree
+    }
     var stack: array<u32, 64>;
     var sp = 1u;
-    stack[0] = 0u;
+    stack[0] = root_index;
     while sp > 0u {
         sp -= 1u;
         let node = bvh_nodes[stack[sp]];
@@ -79,5 +90,5 @@ fn light_visible(l: Light, p: vec3f) -> bool {
     let tl = to_light(l, p);
     // Relative epsilons keep rays from re-hitting the surface they start on.
     let eps = 1e-4 * (1.0 + length(p) * 0.01);
-    return !occluded(p, tl.xyz, eps, tl.w - eps);
+    return !occluded_with_movers(p, tl.xyz, eps, tl.w - eps);
 }

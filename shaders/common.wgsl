@@ -24,7 +24,14 @@ struct Frame {
     dirty_lights: u32,
     // Sparse grid: bricks in the pool.
     pool_capacity: u32,
-    _pad2: u32,
+    // First node of the movers' BVH (after the static tree), or 0xffffffff.
+    mover_root: u32,
+    // Bounds swept by the movers since the last frame (min > max: nothing moved); with
+    // FLAG_CACHE, a voxel whose shadow ray to a light crosses them re-traces that light.
+    moved_min: vec3f,
+    _pad3: u32,
+    moved_max: vec3f,
+    _pad4: u32,
 }
 
 // Frame.flags

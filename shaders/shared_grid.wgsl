@@ -30,6 +30,14 @@ fn trace_voxel(q: vec3u, rays: ptr<function, u32>) -> u32 {
     return mask;
 }
 
+// Whether the shadow ray from `centre` to light `li` crosses the bounds the movers swept
+// since the last frame (then a cached bit of that light may be stale).
+fn crosses_moved(centre: vec3f, li: u32) -> bool {
+    let tl = to_light(lights[li], centre);
+    let inv_d = 1.0 / select(tl.xyz, vec3f(1e-30), abs(tl.xyz) < vec3f(1e-30));
+    return ray_box(centre, inv_d, tl.w, frame.moved_min, frame.moved_max);
+}
+
 // Sphere (centre c, radius r) against the frustum of view v, exact plane distances.
 fn sphere_in_view(v: View, c: vec3f, r: f32) -> bool {
     let d = c - v.position;
@@ -57,6 +65,17 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         let dirty = frame.dirty_lights & 0xffu;
         let old_valid = select(0u, valid[word_index], cache);
         var valid_bits = old_valid & ~(dirty * 0x01010101u);
+        if valid_bits != 0u && all(frame.moved_min <= frame.moved_max) {
+            for (var i = 0u; i < 4u && gid.x * 4u + i < dims.x; i++) {
+                let centre = frame.grid_min + (vec3f(f32(gid.x * 4u + i), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
+                for (var li = 0u; li < frame.light_count; li++) {
+                    let bit = 1u << (8u * i + li);
+                    if (valid_bits & bit) != 0u && crosses_moved(centre, li) {
+                        valid_bits &= ~bit;
+                    }
+                }
+            }
+        }
         let may_trace = (frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u);
         let all_lights = (1u << frame.light_count) - 1u;
         var word = grid[word_index];

@@ -45,7 +45,11 @@ pub(crate) struct FrameGpu {
     pub depth_curve: f32,
     pub dirty_lights: u32,
     pub pool_capacity: u32,
-    pub _pad: u32,
+    pub mover_root: u32,
+    pub moved_min: [f32; 3],
+    pub _pad3: u32,
+    pub moved_max: [f32; 3],
+    pub _pad4: u32,
 }
 
 #[repr(C)]
@@ -141,7 +145,7 @@ impl From<&Medium> for MediumGpu {
     }
 }
 
-const _: () = assert!(std::mem::size_of::<FrameGpu>() == 112);
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 144);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 240);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 96);

@@ -23,6 +23,7 @@ pub use viewer_volumes::{ViewerLayout, ViewerVolumes};
 
 use crate::gpu::{map_read, GpuContext};
 use crate::scene::{Bvh, Camera, Scene};
+use glam::Vec3;
 use gpu_types::*;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -275,6 +276,8 @@ pub struct Renderer {
     prev_view_proj: Vec<glam::Mat4>,
     /// The lights as last uploaded (animated lights move; a change marks the light dirty).
     lights_uploaded: Option<Vec<LightGpu>>,
+    /// Scene time of the movers as last uploaded.
+    movers_time: Option<f32>,
     triangles: usize,
 }
 
@@ -343,7 +346,8 @@ impl Renderer {
             lighting: froxel_lighting::FroxelLighting::new(&ctx, &scene_gpu.layout),
             integration: volume_integration::VolumeIntegration::new(&ctx, &scene_gpu.layout),
             composite: composite::Composite::new(&ctx, &scene_gpu.layout),
-            triangles: bvh.triangle_count(),
+            triangles: bvh.triangle_count()
+                + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
             scene_gpu,
             grid,
             volumes: None,
@@ -352,6 +356,7 @@ impl Renderer {
             frame_index: 0,
             prev_view_proj: Vec::new(),
             lights_uploaded: None,
+            movers_time: None,
             ctx,
             scene,
             settings,
@@ -509,6 +514,18 @@ impl Renderer {
             self.scene_gpu.write_lights(&self.ctx, &lights);
         }
         self.lights_uploaded = Some(lights);
+        // Movers: their tree and vertices at this time, and the bounds they swept since
+        // the last frame (what cached grid bits must be re-checked against).
+        let mover_root = self.scene_gpu.write_movers(&self.ctx, scene, time_s)?;
+        let mut moved = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        if let Some(prev) = self.movers_time.filter(|p| *p != time_s) {
+            for m in &scene.movers {
+                for (lo, hi) in [m.bounds_at(prev), m.bounds_at(time_s)] {
+                    moved = (moved.0.min(lo), moved.1.max(hi));
+                }
+            }
+        }
+        self.movers_time = Some(time_s);
         let s = &self.settings;
         let (lo, hi) = scene.bounds;
         let g = self.grid.as_ref();
@@ -537,7 +554,11 @@ impl Renderer {
             depth_curve: s.depth_curve,
             dirty_lights,
             pool_capacity: s.brick_pool,
-            _pad: 0,
+            mover_root,
+            moved_min: moved.0.to_array(),
+            _pad3: 0,
+            moved_max: moved.1.to_array(),
+            _pad4: 0,
         };
         self.scene_gpu.ensure_views(&self.ctx, cameras.len())?;
         self.ctx

@@ -2,7 +2,19 @@
 
 use super::gpu_types::{FrameGpu, LightGpu, MediumGpu, ViewGpu, COUNTERS};
 use crate::gpu::GpuContext;
-use crate::scene::{Bvh, Scene};
+use crate::scene::{Bvh, GpuBvhNode, GpuTriangle, Scene, TriangleMesh};
+
+/// `Frame.mover_root` when the scene has no movers.
+pub(crate) const NO_MOVERS: u32 = u32::MAX;
+
+/// Raster vertices: position + packed albedo, 16 bytes each.
+fn raster_vertices(mesh: &TriangleMesh) -> Vec<[u32; 4]> {
+    mesh.positions
+        .iter()
+        .zip(&mesh.albedo)
+        .map(|(p, a)| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits(), *a])
+        .collect()
+}
 
 /// Scene buffers: BVH, lights, media, and the small per-frame uniforms and counters.
 pub(crate) struct SceneGpu {
@@ -21,6 +33,11 @@ pub(crate) struct SceneGpu {
     media: wgpu::Buffer,
     nodes: wgpu::Buffer,
     tris: wgpu::Buffer,
+    /// Nodes, triangles and raster vertices of the static scene; the movers' follow.
+    static_nodes: u32,
+    static_tris: u32,
+    static_vertices: u32,
+    mover_node_capacity: u32,
 }
 
 impl SceneGpu {
@@ -30,6 +47,60 @@ impl SceneGpu {
             ctx.queue
                 .write_buffer(&self.lights, 0, bytemuck::cast_slice(lights));
         }
+    }
+
+    /// Rebuilds the movers' BVH at `time_s` and writes it (and their raster vertices)
+    /// after the static scene's; returns the movers' root node, or `NO_MOVERS`.
+    pub(crate) fn write_movers(
+        &self,
+        ctx: &GpuContext,
+        scene: &Scene,
+        time_s: f32,
+    ) -> anyhow::Result<u32> {
+        if scene.movers.is_empty() {
+            return Ok(NO_MOVERS);
+        }
+        let mesh = crate::scene::movers_mesh_at(&scene.movers, time_s);
+        let bvh = Bvh::build(&mesh)?;
+        // Child and triangle indices move past the static tree's.
+        let nodes: Vec<GpuBvhNode> = bvh
+            .gpu_nodes
+            .iter()
+            .map(|n| GpuBvhNode {
+                first_index: n.first_index
+                    + if n.prim_count > 0 {
+                        self.static_tris
+                    } else {
+                        self.static_nodes
+                    },
+                ..*n
+            })
+            .collect();
+        anyhow::ensure!(
+            nodes.len() as u32 <= self.mover_node_capacity,
+            "movers' BVH has {} nodes, more than the {} reserved",
+            nodes.len(),
+            self.mover_node_capacity
+        );
+        let node_size = std::mem::size_of::<GpuBvhNode>() as u64;
+        let tri_size = std::mem::size_of::<GpuTriangle>() as u64;
+        ctx.queue.write_buffer(
+            &self.nodes,
+            self.static_nodes as u64 * node_size,
+            bytemuck::cast_slice(&nodes),
+        );
+        ctx.queue.write_buffer(
+            &self.tris,
+            self.static_tris as u64 * tri_size,
+            bytemuck::cast_slice(&bvh.gpu_triangles),
+        );
+        let verts = raster_vertices(&mesh);
+        ctx.queue.write_buffer(
+            &self.vertices,
+            self.static_vertices as u64 * 16,
+            bytemuck::cast_slice(&verts),
+        );
+        Ok(self.static_nodes)
     }
 
     pub(crate) fn new(ctx: &GpuContext, scene: &Scene, bvh: &Bvh) -> anyhow::Result<SceneGpu> {
@@ -53,21 +124,35 @@ impl SceneGpu {
         )?;
         let lights = ctx.storage_init("lights", &lights, wgpu::BufferUsages::empty());
         let media = ctx.storage_init("media", &media, wgpu::BufferUsages::empty());
-        let nodes = ctx.storage_init("bvh nodes", &bvh.gpu_nodes, wgpu::BufferUsages::empty());
-        let tris = ctx.storage_init(
-            "bvh triangles",
-            &bvh.gpu_triangles,
-            wgpu::BufferUsages::empty(),
+        // Movers' BVH and triangles go after the static ones, rewritten every frame.
+        let movers = crate::scene::movers_mesh_at(&scene.movers, 0.0);
+        let mover_node_capacity = if movers.is_empty() {
+            0
+        } else {
+            2 * movers.len() as u32
+        };
+        let mut node_data = bvh.gpu_nodes.clone();
+        node_data.resize(
+            node_data.len() + mover_node_capacity as usize,
+            GpuBvhNode::default(),
         );
+        let mut tri_data = bvh.gpu_triangles.clone();
+        tri_data.resize(tri_data.len() + movers.len(), GpuTriangle::default());
+        let nodes = ctx.storage_init("bvh nodes", &node_data, wgpu::BufferUsages::COPY_DST);
+        let tris = ctx.storage_init("bvh triangles", &tri_data, wgpu::BufferUsages::COPY_DST);
         let layout = ctx.storage_layout("scene", &[false, false, false, false, false, false, true]);
 
-        // Raster vertices: position + packed albedo, 16 bytes.
-        let mut verts: Vec<[u32; 4]> = Vec::with_capacity(scene.mesh.positions.len().max(1));
-        for (p, a) in scene.mesh.positions.iter().zip(&scene.mesh.albedo) {
-            verts.push([p.x.to_bits(), p.y.to_bits(), p.z.to_bits(), *a]);
-        }
-        let idx: Vec<u32> = scene.mesh.indices.iter().flatten().copied().collect();
-        let vertices = ctx.storage_init("vertices", &verts, wgpu::BufferUsages::VERTEX);
+        // Raster vertices and indices: the static mesh, then the movers (whose vertices
+        // are rewritten every frame).
+        let mut all = scene.mesh.clone();
+        all.append(&movers);
+        let verts = raster_vertices(&all);
+        let idx: Vec<u32> = all.indices.iter().flatten().copied().collect();
+        let vertices = ctx.storage_init(
+            "vertices",
+            &verts,
+            wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+        );
         let indices = ctx.storage_init("indices", &idx, wgpu::BufferUsages::INDEX);
 
         let memory = vec![
@@ -97,6 +182,10 @@ impl SceneGpu {
             media,
             nodes,
             tris,
+            static_nodes: bvh.gpu_nodes.len() as u32,
+            static_tris: bvh.gpu_triangles.len() as u32,
+            static_vertices: scene.mesh.positions.len() as u32,
+            mover_node_capacity,
         })
     }
 

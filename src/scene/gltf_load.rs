@@ -110,6 +110,7 @@ pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
         .unwrap_or("gltf")
         .to_string();
     Ok(SceneDesc {
+        movers: Vec::new(),
         name,
         render: RenderDefaults {
             far_m: size.length().clamp(8.0, 1000.0),

@@ -35,6 +35,15 @@ impl TriangleMesh {
     pub fn is_empty(&self) -> bool {
         self.indices.is_empty()
     }
+
+    /// Appends `other`'s triangles (indices shifted past this mesh's vertices).
+    pub fn append(&mut self, other: &TriangleMesh) {
+        let base = self.positions.len() as u32;
+        self.positions.extend(&other.positions);
+        self.albedo.extend(&other.albedo);
+        self.indices
+            .extend(other.indices.iter().map(|t| t.map(|i| i + base)));
+    }
 }
 
 /// Meshes in world space (f64), before the shift to render space.

@@ -9,12 +9,14 @@ mod camera;
 mod gltf_load;
 mod media;
 mod mesh;
+mod mover;
 
 pub use builtin::{builtin_names, builtin_scene};
 pub use bvh::{intersect_triangle, Bvh, GpuBvhNode, GpuTriangle, Ray, MAX_BVH_DEPTH};
 pub use camera::{Camera, CameraPath};
 pub use media::{density_at, hg_phase, sample_media, MediumSample};
 pub use mesh::TriangleMesh;
+pub use mover::{movers_mesh_at, Mover, MoverDesc};
 
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -346,6 +348,9 @@ pub struct SceneDesc {
     /// Participating media.
     #[serde(default, rename = "medium")]
     pub media: Vec<MediumDesc>,
+    /// Moving occluders (spinning boxes).
+    #[serde(default, rename = "mover")]
+    pub movers: Vec<MoverDesc>,
     /// Where viewers stand.
     pub camera: CameraPath,
 }
@@ -446,6 +451,8 @@ pub struct Scene {
     pub bounds: (Vec3, Vec3),
     /// Lights dropped because more than 8 were given.
     pub dropped_lights: usize,
+    /// Moving occluders (render space, at time 0); not in `mesh`.
+    pub movers: Vec<Mover>,
 }
 
 impl Scene {
@@ -525,6 +532,12 @@ impl Scene {
         for p in &desc.camera.path {
             grow(Vec3::from(*p).as_dvec3());
         }
+        // Movers, validated in world space (origin 0) to find their reach.
+        for (i, m) in desc.movers.iter().enumerate() {
+            let (a, b) = Mover::new(i, m, glam::DVec3::ZERO)?.reach();
+            grow(a.as_dvec3());
+            grow(b.as_dvec3());
+        }
         let origin = ((lo + hi) * 0.5).round();
         let to_render = |p: [f32; 3]| (Vec3::from(p).as_dvec3() - origin).as_vec3();
         let bounds = ((lo - origin).as_vec3(), (hi - origin).as_vec3());
@@ -537,7 +550,14 @@ impl Scene {
             .map(|m| media::to_render_space(m, &to_render, bounds))
             .collect();
         let camera = desc.camera.translated(&to_render);
+        let movers = desc
+            .movers
+            .iter()
+            .enumerate()
+            .map(|(i, m)| Mover::new(i, m, origin))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Scene {
+            movers,
             name: desc.name,
             render: desc.render,
             mesh,
@@ -561,7 +581,7 @@ impl Scene {
     }
 }
 
-fn check_finite(field: &str, v: &[f32]) -> Result<(), SceneError> {
+pub(crate) fn check_finite(field: &str, v: &[f32]) -> Result<(), SceneError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(())
     } else {
@@ -569,7 +589,13 @@ fn check_finite(field: &str, v: &[f32]) -> Result<(), SceneError> {
     }
 }
 
-fn check_range(field: &str, v: f32, lo: f32, hi: f32, what: &str) -> Result<(), SceneError> {
+pub(crate) fn check_range(
+    field: &str,
+    v: f32,
+    lo: f32,
+    hi: f32,
+    what: &str,
+) -> Result<(), SceneError> {
     if v.is_finite() && v >= lo && v <= hi {
         Ok(())
     } else {

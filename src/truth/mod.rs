@@ -113,6 +113,9 @@ pub fn tone_map(c: Vec3, exposure: f32) -> [u8; 4] {
 
 struct PixelContext<'a> {
     scene: &'a Scene,
+    /// The scene's triangles at `time_s`: its static mesh, plus the movers where it
+    /// has any (then `bvh` is built over this mesh).
+    mesh: &'a crate::scene::TriangleMesh,
     /// The scene's lights at `time_s` (animated lights moved).
     lights: Vec<crate::scene::Light>,
     bvh: &'a Bvh,
@@ -139,12 +142,12 @@ impl PixelContext<'_> {
         let (color, t_end) = match hit {
             Some((t, tri)) => {
                 let p = cam.position + dir * t;
-                let [a, b, c] = self.scene.mesh.triangle(tri);
+                let [a, b, c] = self.mesh.triangle(tri);
                 let mut n = (b - a).cross(c - a).normalize_or(Vec3::Y);
                 if n.dot(dir) > 0.0 {
                     n = -n;
                 }
-                let packed = self.scene.mesh.albedo[self.scene.mesh.indices[tri][0] as usize];
+                let packed = self.mesh.albedo[self.mesh.indices[tri][0] as usize];
                 let albedo = Vec3::new(
                     (packed & 255) as f32,
                     ((packed >> 8) & 255) as f32,
@@ -250,8 +253,21 @@ pub fn render_truth(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> (Vec<Vec<u8>>, TruthCounts) {
     let (lo, hi) = scene.bounds;
+    // Movers: one tree over the static mesh and the movers where they are at `time_s`.
+    let with_movers = (!scene.movers.is_empty()).then(|| {
+        let mut mesh = scene.mesh.clone();
+        mesh.append(&crate::scene::movers_mesh_at(&scene.movers, time_s));
+        let bvh =
+            Bvh::build(&mesh).expect("the static mesh built a BVH; boxes add 12 triangles each");
+        (mesh, bvh)
+    });
+    let (mesh, bvh) = match &with_movers {
+        Some((m, b)) => (m, b),
+        None => (&scene.mesh, bvh),
+    };
     let ctx = PixelContext {
         scene,
+        mesh,
         lights: scene.lights_at(time_s),
         bvh,
         max_ray_m: (hi - lo).length() + 1.0,
