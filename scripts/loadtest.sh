@@ -4,7 +4,7 @@
 # stops the server whatever happens (trap). docs/loadtest.md explains the numbers.
 #
 # Knobs (environment): SCENE (colonnade), LOADTEST_VIEWERS (1,2,4,8,12,16),
-# LOADTEST_SECONDS (10), LOADGEN_ARGS (more loadgen flags), SERVE_ARGS (more serve
+# LOADTEST_SECONDS (20), LOADGEN_ARGS (more loadgen flags), SERVE_ARGS (more serve
 # flags), OUT (out/loadtest), FOGCAST (./target/release/fogcast).
 set -euo pipefail
 
@@ -12,7 +12,7 @@ bin=${FOGCAST:-./target/release/fogcast}
 scene=${SCENE:-colonnade}
 out=${OUT:-out/loadtest}
 viewers=${LOADTEST_VIEWERS:-1,2,4,8,12,16}
-seconds=${LOADTEST_SECONDS:-10}
+seconds=${LOADTEST_SECONDS:-20}
 started=$(date +%s)
 
 [ -x "$bin" ] || { echo "loadtest: $bin not found; run \`make build\` first" >&2; exit 1; }
