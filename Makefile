@@ -31,6 +31,12 @@ render: deps-runtime build
 test: deps
 	$(CARGO) test -- --test-threads=1
 
+# Load test: `fogcast serve` on a free loopback port and the default `fogcast loadgen`
+# sweep (1..16 viewers) against it; report in out/loadtest/ (docs/loadtest.md).
+.PHONY: loadtest
+loadtest: deps-runtime build
+	@SCENE=$(SCENE) bash scripts/loadtest.sh
+
 lint:
 	$(CARGO) fmt --check
 	$(CARGO) clippy --all-targets -- -D warnings

@@ -4,6 +4,7 @@
 //!
 //! - [`scene`]: scene files, built-in scenes, glTF, the BVH for shadow rays.
 //! - [`gpu`]: device selection and buffer helpers.
+//! - [`loadgen`]: `fogcast loadgen`, real WebSocket viewers loading a running server.
 //! - [`render`]: the froxel pipeline (`reference` and `shared` modes).
 //! - [`metrics`]: image error (FLIP, PSNR, RMSE).
 //! - [`server`]: `fogcast serve`, streaming every viewer's frames to browsers over WebSocket.
@@ -15,6 +16,7 @@
 
 pub mod eval;
 pub mod gpu;
+pub mod loadgen;
 pub mod metrics;
 pub mod output;
 pub mod render;

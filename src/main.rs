@@ -1,4 +1,5 @@
-//! fogcast command line: `render` (offline frames + stats), `serve` (stream to browsers).
+//! fogcast command line: `render` (offline frames + stats), `serve` (stream to browsers),
+//! `loadgen` (load a running server with WebSocket viewers).
 
 use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand};
@@ -28,6 +29,8 @@ enum Command {
     Serve(fogcast::server::ServeArgs),
     /// Measure error and cost: truth, reference and a sweep of shared settings on the same frames.
     Eval(EvalArgs),
+    /// Load a running server with N real WebSocket viewers per sweep point; report fps, latency, bandwidth.
+    Loadgen(fogcast::loadgen::LoadgenArgs),
 }
 
 #[derive(Args)]
@@ -189,6 +192,7 @@ fn main() {
         Command::Render(a) => render(a),
         Command::Serve(a) => fogcast::server::serve(&a),
         Command::Eval(a) => eval(a),
+        Command::Loadgen(a) => fogcast::loadgen::loadgen(&a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

@@ -1,0 +1,76 @@
+#!/usr/bin/env bash
+# `make loadtest`: starts `fogcast serve` on a free loopback port, waits for /healthz,
+# runs the default `fogcast loadgen` sweep (1 to 16 viewers) into out/loadtest/, and
+# stops the server whatever happens (trap). docs/loadtest.md explains the numbers.
+#
+# Knobs (environment): SCENE (colonnade), LOADTEST_VIEWERS (1,2,4,8,12,16),
+# LOADTEST_SECONDS (20), LOADGEN_ARGS (more loadgen flags), SERVE_ARGS (more serve
+# flags), OUT (out/loadtest), FOGCAST (./target/release/fogcast).
+set -euo pipefail
+
+bin=${FOGCAST:-./target/release/fogcast}
+scene=${SCENE:-colonnade}
+out=${OUT:-out/loadtest}
+viewers=${LOADTEST_VIEWERS:-1,2,4,8,12,16}
+seconds=${LOADTEST_SECONDS:-20}
+started=$(date +%s)
+
+[ -x "$bin" ] || { echo "loadtest: $bin not found; run \`make build\` first" >&2; exit 1; }
+mkdir -p "$out"
+server_out="$out/server.stdout"
+server_log="$out/server.log"
+
+# shellcheck disable=SC2086 # SERVE_ARGS is a list of flags
+"$bin" serve --scene "$scene" --addr 127.0.0.1 --port 0 ${SERVE_ARGS:-} >"$server_out" 2>"$server_log" &
+server=$!
+stop_server() {
+  if kill -0 "$server" 2>/dev/null; then
+    kill -TERM "$server" 2>/dev/null || true
+    # Graceful shutdown closes every session; give it 10 s before forcing.
+    for _ in $(seq 1 100); do
+      kill -0 "$server" 2>/dev/null || break
+      sleep 0.1
+    done
+    kill -KILL "$server" 2>/dev/null || true
+  fi
+  wait "$server" 2>/dev/null || true
+}
+trap stop_server EXIT
+trap 'exit 130' INT TERM
+
+# The server prints "fogcast serving http://127.0.0.1:PORT ..." once it listens (after
+# building the scene's BVH and pipelines).
+url=
+for _ in $(seq 1 1200); do
+  if ! kill -0 "$server" 2>/dev/null; then
+    echo "loadtest: the server exited during start-up; its log ($server_log):" >&2
+    tail -n 20 "$server_log" >&2
+    exit 1
+  fi
+  url=$(grep -o 'http://[0-9.]*:[0-9]*' "$server_out" | head -n 1 || true)
+  [ -n "$url" ] && break
+  sleep 0.1
+done
+[ -n "$url" ] || { echo "loadtest: the server did not start listening within 120 s; see $server_log" >&2; exit 1; }
+hostport=${url#http://}
+
+healthz() {
+  if command -v curl >/dev/null 2>&1; then
+    curl -fsS --max-time 5 "$url/healthz"
+  else
+    exec 3<>"/dev/tcp/${hostport%:*}/${hostport#*:}" &&
+      printf 'GET /healthz HTTP/1.1\r\nHost: %s\r\nConnection: close\r\n\r\n' "$hostport" >&3 &&
+      grep -q '"status":"ok"' <&3 && echo '{"status":"ok"}'
+  fi
+}
+health=
+for _ in $(seq 1 300); do
+  health=$(healthz 2>/dev/null) && break
+  sleep 0.2
+done
+[ -n "$health" ] || { echo "loadtest: $url/healthz never answered; see $server_log" >&2; exit 1; }
+echo "loadtest: server at $url (started in $(( $(date +%s) - started )) s): $health" >&2
+
+# shellcheck disable=SC2086 # LOADGEN_ARGS is a list of flags
+"$bin" loadgen --url "ws://$hostport/ws" --viewers "$viewers" --seconds "$seconds" --out "$out" ${LOADGEN_ARGS:-}
+echo "loadtest: done in $(( $(date +%s) - started )) s; report: $out/loadgen.md" >&2

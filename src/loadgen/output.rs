@@ -1,0 +1,330 @@
+//! The loadgen report: loadgen.json (everything), loadgen.csv (one row per viewer per
+//! point), loadgen.md (tables) and PNG plots of fps, latency and the largest point's
+//! per-second timeline.
+
+use super::{Latency, LoadgenReport, PointResult};
+use crate::report::{plot, Series, Table};
+use anyhow::Context as _;
+use std::path::{Path, PathBuf};
+
+fn f1(v: f64) -> String {
+    format!("{v:.1}")
+}
+
+fn opt_ms(v: Option<f64>) -> String {
+    v.map_or_else(|| "–".into(), |v| format!("{v:.1}"))
+}
+
+fn lat(l: &Option<Latency>, pick: fn(&Latency) -> f64) -> String {
+    l.as_ref()
+        .map_or_else(|| "–".into(), |l| format!("{:.0}", pick(l)))
+}
+
+fn kib(bytes_per_s: f64) -> String {
+    format!("{:.0}", bytes_per_s / 1024.0)
+}
+
+/// Writes the report's files into `out` (created if missing); returns their paths.
+pub fn write_report(report: &LoadgenReport, out: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut written = Vec::new();
+    let mut write = |name: &str, text: String| -> anyhow::Result<()> {
+        let path = out.join(name);
+        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
+        written.push(path);
+        Ok(())
+    };
+    write("loadgen.json", serde_json::to_string_pretty(report)? + "\n")?;
+    write("loadgen.csv", viewer_table(&report.points).to_csv())?;
+    write("loadgen.md", markdown(report))?;
+    for name in plots(report, out)? {
+        written.push(out.join(name));
+    }
+    Ok(written)
+}
+
+/// Every viewer of `points`, one row each.
+fn viewer_table(points: &[PointResult]) -> Table {
+    let mut t = Table::new(&[
+        "views",
+        "viewer",
+        "session",
+        "fps",
+        "frames",
+        "latency_p50_ms",
+        "latency_p95_ms",
+        "latency_p99_ms",
+        "latency_samples",
+        "kib_per_s",
+        "dropped_server",
+        "missed_frames",
+        "longest_gap_ms",
+        "seconds_without_frames",
+        "frames_per_second",
+    ]);
+    for p in points {
+        for v in &p.per_viewer {
+            t.push(vec![
+                p.viewers.to_string(),
+                v.index.to_string(),
+                v.session.to_string(),
+                f1(v.fps),
+                v.frames.to_string(),
+                lat(&v.latency, |l| l.p50_ms),
+                lat(&v.latency, |l| l.p95_ms),
+                lat(&v.latency, |l| l.p99_ms),
+                v.latency.map_or(0, |l| l.samples).to_string(),
+                kib(v.bytes_per_s),
+                v.dropped_server.to_string(),
+                v.missed_frames.to_string(),
+                format!("{:.0}", v.max_gap_ms),
+                v.seconds_without_frames.to_string(),
+                v.timeline
+                    .iter()
+                    .map(u32::to_string)
+                    .collect::<Vec<_>>()
+                    .join(" "),
+            ]);
+        }
+    }
+    t
+}
+
+fn markdown(r: &LoadgenReport) -> String {
+    let c = &r.config;
+    let mut md = String::from("# fogcast loadgen\n\n");
+    if !r.command.is_empty() {
+        md += &format!("Command: `{}`\n\n", r.command);
+    }
+    md += &format!(
+        "Server `{}`, scene `{}` (at most {} views). Machine: {}. The whole run took {:.0} s.\n\n\
+         Each session asks for {}×{} {:?} frames at JPEG quality {} and sends a pose {} times a second; \
+         camera paths: {}. Each point is measured for {} s after every viewer has frames and a {} s warm-up.\n\n",
+        c.url, r.scene, r.server_max_viewers, r.machine, r.duration_s, c.width, c.height, c.layout,
+        c.quality, c.pose_hz, r.camera_paths, c.seconds, c.warmup_s
+    );
+    md += "## Per point\n\nfps and bandwidth per viewer (one session); latency is pose-to-frame over every viewer's samples; \
+           *dropped* are frames the server replaced or skipped for a session (its header counter), *missed* the \
+           render-loop frames a session did not receive; *every second* says every viewer received frames in every \
+           second of the window.\n\n";
+    let mut t = Table::new(&[
+        "views",
+        "fps/viewer mean",
+        "min",
+        "max",
+        "server fps",
+        "frame ms",
+        "latency p50 ms",
+        "p95 ms",
+        "p99 ms",
+        "KiB/s per viewer",
+        "MiB/s total",
+        "dropped",
+        "missed",
+        "longest gap ms",
+        "every second",
+    ]);
+    for p in &r.points {
+        let s = &p.summary;
+        t.push(vec![
+            p.viewers.to_string(),
+            f1(s.fps_mean),
+            f1(s.fps_min),
+            f1(s.fps_max),
+            f1(p.server.fps),
+            opt_ms(p.server.frame_ms),
+            lat(&s.latency, |l| l.p50_ms),
+            lat(&s.latency, |l| l.p95_ms),
+            lat(&s.latency, |l| l.p99_ms),
+            kib(s.bytes_per_s_per_viewer),
+            format!("{:.2}", s.bytes_per_s_total / (1024.0 * 1024.0)),
+            s.dropped_server_total.to_string(),
+            s.missed_frames_total.to_string(),
+            format!("{:.0}", s.max_gap_ms),
+            if s.every_viewer_every_second {
+                "yes".into()
+            } else {
+                format!("**no** ({} ended early)", s.viewers_ended_early)
+            },
+        ]);
+    }
+    md += &t.to_markdown();
+
+    md += "\n## Server per point (`/metrics` over the window)\n\nframe: one render-loop iteration; render: one batched \
+           render call, upload to readback; encode: compose + JPEG of one session frame; GPU ms per stage from \
+           timestamp queries; rays per frame over all stages.\n\n";
+    let stages: Vec<String> = {
+        let mut s: Vec<String> = r
+            .points
+            .iter()
+            .flat_map(|p| p.server.stage_gpu_ms.keys().cloned())
+            .collect();
+        s.sort();
+        s.dedup();
+        s
+    };
+    let mut headers: Vec<String> = ["views", "frames", "frame ms", "render ms", "encode ms"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    headers.extend(stages.iter().map(|s| format!("{s} GPU ms")));
+    headers.extend(
+        ["rays/frame", "dropped slow", "dropped busy", "RSS MiB"]
+            .iter()
+            .map(|s| s.to_string()),
+    );
+    let mut t = Table {
+        headers,
+        rows: Vec::new(),
+    };
+    for p in &r.points {
+        let s = &p.server;
+        let mut row = vec![
+            p.viewers.to_string(),
+            s.frames.to_string(),
+            opt_ms(s.frame_ms),
+            opt_ms(s.render_ms),
+            opt_ms(s.encode_ms),
+        ];
+        row.extend(
+            stages
+                .iter()
+                .map(|st| opt_ms(s.stage_gpu_ms.get(st).copied())),
+        );
+        row.push(format!("{:.0}", s.rays_per_frame.values().sum::<f64>()));
+        row.push(s.dropped_client_slow.to_string());
+        row.push(s.dropped_encoder_busy.to_string());
+        row.push(format!("{:.0}", s.resident_memory_mib));
+        t.push(row);
+    }
+    md += &t.to_markdown();
+
+    if let Some(p) = r.points.iter().max_by_key(|p| p.viewers) {
+        md += &format!(
+            "\n## Every viewer at {} views\n\nThe last column is the frames each viewer received in each second of the {:.0} s window.\n\n",
+            p.viewers, p.window_s
+        );
+        let full = viewer_table(std::slice::from_ref(p));
+        // The markdown drops the columns the heading already gives.
+        let keep = [1, 3, 4, 5, 6, 7, 9, 10, 11, 12, 14];
+        let t = Table {
+            headers: keep.iter().map(|&i| full.headers[i].clone()).collect(),
+            rows: full
+                .rows
+                .iter()
+                .map(|row| keep.iter().map(|&i| row[i].clone()).collect())
+                .collect(),
+        };
+        md += &t.to_markdown();
+        let errors: Vec<String> = p
+            .per_viewer
+            .iter()
+            .flat_map(|v| {
+                v.server_errors
+                    .iter()
+                    .map(move |e| format!("- viewer {}: {e}", v.index))
+                    .chain(
+                        v.ended_early
+                            .iter()
+                            .map(move |e| format!("- viewer {} ended early: {e}", v.index)),
+                    )
+            })
+            .collect();
+        if !errors.is_empty() {
+            md += &format!("\nServer errors and early ends:\n\n{}\n", errors.join("\n"));
+        }
+    }
+    md += "\n![fps vs viewers](loadgen_fps.png)\n\n![latency vs viewers](loadgen_latency.png)\n\n\
+           ![frames per second of the largest point](loadgen_timeline.png)\n";
+    md
+}
+
+/// Writes the plots; returns their file names.
+fn plots(r: &LoadgenReport, out: &Path) -> anyhow::Result<Vec<&'static str>> {
+    let x = |p: &PointResult| p.viewers as f64;
+    let series = |name: &str, f: &dyn Fn(&PointResult) -> Option<f64>| Series {
+        name: name.into(),
+        points: r
+            .points
+            .iter()
+            .filter_map(|p| Some((x(p), f(p)?)))
+            .collect(),
+    };
+    plot(
+        &out.join("loadgen_fps.png"),
+        "Delivered frame rate vs viewers",
+        "viewers (views)",
+        "frames per second",
+        &[
+            series("per viewer, mean", &|p| Some(p.summary.fps_mean)),
+            series("per viewer, lowest", &|p| Some(p.summary.fps_min)),
+            series("server render loop", &|p| Some(p.server.fps)),
+        ],
+        true,
+        false,
+        false,
+    )?;
+    let l = |pick: fn(&Latency) -> f64| move |p: &PointResult| p.summary.latency.as_ref().map(pick);
+    plot(
+        &out.join("loadgen_latency.png"),
+        "Pose-to-frame latency vs viewers",
+        "viewers (views)",
+        "latency, ms",
+        &[
+            series("p50", &l(|l| l.p50_ms)),
+            series("p95", &l(|l| l.p95_ms)),
+            series("p99", &l(|l| l.p99_ms)),
+        ],
+        true,
+        false,
+        false,
+    )?;
+    let mut names = vec!["loadgen_fps.png", "loadgen_latency.png"];
+    let largest = r
+        .points
+        .iter()
+        .filter(|p| !p.per_viewer.is_empty())
+        .max_by_key(|p| p.viewers);
+    if let Some(p) = largest {
+        let seconds = p
+            .per_viewer
+            .iter()
+            .map(|v| v.timeline.len())
+            .max()
+            .unwrap_or(0);
+        let at = |i: usize, pick: fn(&[u32]) -> u32| {
+            let mut v: Vec<u32> = p
+                .per_viewer
+                .iter()
+                .map(|v| v.timeline.get(i).copied().unwrap_or(0))
+                .collect();
+            v.sort_unstable();
+            f64::from(pick(&v))
+        };
+        let line = |name: &str, pick: fn(&[u32]) -> u32| Series {
+            name: name.into(),
+            points: (0..seconds)
+                .map(|i| (i as f64 + 0.5, at(i, pick)))
+                .collect(),
+        };
+        plot(
+            &out.join("loadgen_timeline.png"),
+            &format!(
+                "Frames each viewer received per second, {} views",
+                p.viewers
+            ),
+            "second of the measured window",
+            "frames in that second",
+            &[
+                line("most", |v| v[v.len() - 1]),
+                line("median", |v| v[v.len() / 2]),
+                line("fewest", |v| v[0]),
+            ],
+            true,
+            false,
+            false,
+        )?;
+        names.push("loadgen_timeline.png");
+    }
+    Ok(names)
+}

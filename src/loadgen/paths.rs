@@ -1,0 +1,132 @@
+//! Where each simulated viewer flies: the scene's own camera loop, viewers spread evenly
+//! along it as players over a level would be (as `fogcast render` and the bench place
+//! them), or — when the scene is not available on this machine — a slow circle around
+//! the viewpoint the server handed out in the welcome.
+
+use crate::scene::{CameraPath, Scene};
+use crate::server::protocol::{CheckedPose, ViewPose};
+use glam::{DQuat, DVec3};
+
+/// Radius of the fallback circle, metres.
+const ORBIT_RADIUS_M: f64 = 1.0;
+/// Angular speed of the fallback circle (and of the view turning with it), rad/s.
+const ORBIT_RAD_PER_S: f64 = 0.3;
+
+/// The camera paths of every simulated viewer.
+#[derive(Debug, Clone)]
+pub(crate) enum Paths {
+    /// The scene's camera loop.
+    Scene {
+        /// Scene name (for the report).
+        name: String,
+        /// The loop.
+        path: CameraPath,
+    },
+    /// A circle around each view's starting pose.
+    Orbit,
+}
+
+impl Paths {
+    /// The scene's loop if `scene` loads here, else circles (the reason is returned).
+    pub(crate) fn load(scene: &str) -> (Paths, Option<String>) {
+        match Scene::load(scene) {
+            Ok(s) => (
+                Paths::Scene {
+                    name: s.name,
+                    path: s.camera,
+                },
+                None,
+            ),
+            Err(e) => (Paths::Orbit, Some(format!("scene {scene:?}: {e}"))),
+        }
+    }
+
+    /// One sentence for the report.
+    pub(crate) fn describe(&self) -> String {
+        match self {
+            Paths::Scene { name, path } => format!(
+                "viewers spread evenly along scene {name:?}'s camera loop, walking it at {} m/s",
+                path.speed_mps
+            ),
+            Paths::Orbit => format!(
+                "each view circles its welcome viewpoint ({ORBIT_RADIUS_M} m radius, turning {ORBIT_RAD_PER_S} rad/s)"
+            ),
+        }
+    }
+
+    /// Pose of slot `slot` of `slots` (one slot per pose a client sends) at `time_s`;
+    /// `start` is the slot's pose from the welcome.
+    pub(crate) fn pose(
+        &self,
+        slot: usize,
+        slots: usize,
+        time_s: f64,
+        start: &ViewPose,
+    ) -> ViewPose {
+        match self {
+            Paths::Scene { path, .. } => {
+                let camera = path.viewers(slots, time_s as f32)[slot];
+                CheckedPose::from_camera(&camera).to_view_pose()
+            }
+            Paths::Orbit => {
+                let phase = std::f64::consts::TAU * slot as f64 / slots.max(1) as f64;
+                let angle = time_s * ORBIT_RAD_PER_S + phase;
+                let centre = DVec3::from_array(start.position);
+                let offset = DVec3::new(angle.cos() - phase.cos(), 0.0, angle.sin() - phase.sin())
+                    * ORBIT_RADIUS_M;
+                let [x, y, z, w] = start.orientation;
+                let q0 = DQuat::from_xyzw(x, y, z, w);
+                let len = q0.length();
+                let q0 = if len.is_finite() && len > 1e-9 {
+                    q0 / len
+                } else {
+                    DQuat::IDENTITY
+                };
+                let q = DQuat::from_rotation_y(time_s * ORBIT_RAD_PER_S) * q0;
+                ViewPose {
+                    position: (centre + offset).to_array(),
+                    orientation: q.to_array(),
+                    fov_y_deg: start.fov_y_deg,
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn viewers_are_spread_and_move() {
+        let (paths, why) = Paths::load("colonnade");
+        assert!(why.is_none(), "{why:?}");
+        let start = ViewPose {
+            position: [0.0; 3],
+            orientation: [0.0, 0.0, 0.0, 1.0],
+            fov_y_deg: 60.0,
+        };
+        let a = paths.pose(0, 4, 0.0, &start);
+        let b = paths.pose(1, 4, 0.0, &start);
+        let a_later = paths.pose(0, 4, 2.0, &start);
+        let dist = |p: &ViewPose, q: &ViewPose| {
+            DVec3::from_array(p.position).distance(DVec3::from_array(q.position))
+        };
+        assert!(dist(&a, &b) > 0.5, "{a:?} vs {b:?}");
+        assert!(dist(&a, &a_later) > 0.1, "{a:?} vs {a_later:?}");
+        for p in [a, b, a_later] {
+            CheckedPose::new(&p, 0).expect("a valid pose");
+        }
+
+        let (orbit, why) = Paths::load("no-such-scene-here");
+        assert!(matches!(orbit, Paths::Orbit) && why.is_some());
+        let o0 = orbit.pose(0, 1, 0.0, &start);
+        assert!(
+            dist(&o0, &start) < 1e-9,
+            "the circle starts at the welcome pose"
+        );
+        let o1 = orbit.pose(0, 1, 3.0, &start);
+        assert!(dist(&o1, &start) > 0.1, "the circle moves");
+        CheckedPose::new(&o1, 0).expect("a valid pose");
+    }
+}

@@ -1,0 +1,186 @@
+//! `fogcast loadgen` against a real server: two WebSocket viewers for a few seconds get
+//! frames, finite ordered latency percentiles and bytes; the report files are written;
+//! an unreachable server, a refused hello and a sweep over the server's view limit give
+//! errors that say so. No timing assertions (DESIGN.md §7).
+
+mod server_support;
+
+use fogcast::loadgen::{run, write_report, LoadgenConfig};
+use fogcast::server::ServerConfig;
+use server_support::*;
+
+fn config_for(addr: std::net::SocketAddr) -> LoadgenConfig {
+    LoadgenConfig {
+        url: format!("ws://{addr}/ws"),
+        viewers: vec![2],
+        seconds: 3.0,
+        warmup_s: 0.5,
+        pose_hz: 20.0,
+        width: 64,
+        height: 36,
+        ..LoadgenConfig::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_viewers_get_frames_latency_and_bytes() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    let config = config_for(addr);
+    let report = run(&config, "test", &|line| eprintln!("{line}"))
+        .await
+        .expect("loadgen runs");
+
+    assert_eq!(report.scene, "colonnade");
+    assert!(
+        report.camera_paths.contains("camera loop"),
+        "viewers fly the scene's loop: {}",
+        report.camera_paths
+    );
+    assert_eq!(report.points.len(), 1);
+    let p = &report.points[0];
+    assert_eq!((p.viewers, p.sessions, p.per_viewer.len()), (2, 2, 2));
+    assert!(p.window_s >= 3.0, "window {} s", p.window_s);
+    for v in &p.per_viewer {
+        let who = format!("viewer {} (session {})", v.index, v.session);
+        assert!(v.frames > 0, "{who} received no frames");
+        assert!(v.fps > 0.0 && v.fps.is_finite(), "{who}: fps {}", v.fps);
+        assert!(v.bytes > 0 && v.bytes_per_s > 0.0, "{who}: no bytes");
+        assert!(
+            v.mean_frame_bytes > 32.0,
+            "{who}: frames are a header and a JPEG ({} bytes)",
+            v.mean_frame_bytes
+        );
+        let l = v
+            .latency
+            .unwrap_or_else(|| panic!("{who}: no latency samples"));
+        assert!(l.samples > 0);
+        for x in [l.p50_ms, l.p95_ms, l.p99_ms, l.mean_ms, l.max_ms] {
+            assert!(x.is_finite() && x >= 0.0, "{who}: latency {l:?}");
+        }
+        assert!(
+            l.p50_ms <= l.p95_ms && l.p95_ms <= l.p99_ms && l.p99_ms <= l.max_ms,
+            "{who}: percentiles out of order {l:?}"
+        );
+        assert!(v.poses_sent > 0, "{who} sent poses");
+        assert_eq!(v.bad_frames, 0, "{who}: frames not matching the session");
+        assert!(v.server_errors.is_empty(), "{who}: {:?}", v.server_errors);
+        assert_eq!(v.ended_early, None, "{who}");
+        assert_eq!(v.timeline.len(), 3, "{who}: one count per second");
+        assert_eq!(
+            v.timeline.iter().map(|&n| u64::from(n)).sum::<u64>(),
+            v.frames,
+            "{who}: the timeline adds up to the frames"
+        );
+        assert!(v.header_render_ms.is_some_and(|ms| ms > 0.0), "{who}");
+    }
+    let pooled = p.summary.latency.expect("pooled latency");
+    assert!(pooled.p50_ms <= pooled.p95_ms && pooled.p95_ms <= pooled.p99_ms);
+    assert_eq!(
+        pooled.samples,
+        p.per_viewer
+            .iter()
+            .map(|v| v.latency.map_or(0, |l| l.samples))
+            .sum::<usize>()
+    );
+    let s = &p.server;
+    assert!(s.frames > 0 && s.fps > 0.0, "server frames {s:?}");
+    assert!(s.frame_ms.is_some_and(|ms| ms > 0.0), "{s:?}");
+    assert!(s.bytes_sent > 0 && s.frames_sent > 0, "{s:?}");
+    assert_eq!(
+        (s.viewers, s.sessions),
+        (2, 2),
+        "the server saw both viewers"
+    );
+    assert!(!s.stage_gpu_ms.is_empty(), "GPU stage times scraped");
+
+    // loadgen waited for the server to let the sessions go.
+    assert_eq!(server.counts(), (0, 0));
+
+    let out = std::env::temp_dir().join(format!("fogcast-loadgen-test-{}", std::process::id()));
+    let files = write_report(&report, &out).expect("report written");
+    for name in [
+        "loadgen.json",
+        "loadgen.csv",
+        "loadgen.md",
+        "loadgen_fps.png",
+        "loadgen_latency.png",
+        "loadgen_timeline.png",
+    ] {
+        let path = out.join(name);
+        assert!(files.contains(&path), "{name} listed");
+        assert!(std::fs::metadata(&path).unwrap().len() > 0, "{name} empty");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("loadgen.json")).unwrap()).unwrap();
+    let v0 = &json["points"][0]["per_viewer"][0];
+    for key in [
+        "fps",
+        "bytes_per_s",
+        "dropped_server",
+        "missed_frames",
+        "timeline",
+    ] {
+        assert!(!v0[key].is_null(), "loadgen.json per-viewer field {key}");
+    }
+    assert!(v0["latency"]["p99_ms"].is_number());
+    let csv = std::fs::read_to_string(out.join("loadgen.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "a header and one row per viewer");
+    let md = std::fs::read_to_string(out.join("loadgen.md")).unwrap();
+    assert!(md.contains("## Every viewer at 2 views"), "{md}");
+    std::fs::remove_dir_all(&out).unwrap();
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn errors_name_the_problem() {
+    // Nobody listens on a port that was just released.
+    let free = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let gone = free.local_addr().unwrap();
+    drop(free);
+    let e = run(&config_for(gone), "", &|_| {}).await.unwrap_err();
+    let msg = format!("{e:#}");
+    assert!(
+        msg.contains("cannot reach") && msg.contains(&gone.to_string()),
+        "{msg}"
+    );
+
+    let bad = LoadgenConfig {
+        url: "http://127.0.0.1:1/ws".into(),
+        ..LoadgenConfig::default()
+    };
+    assert!(format!("{:#}", bad.validate().unwrap_err()).contains("http"));
+    let odd = LoadgenConfig {
+        layout: fogcast::server::protocol::Layout::Stereo,
+        viewers: vec![3],
+        ..LoadgenConfig::default()
+    };
+    assert!(format!("{:#}", odd.validate().unwrap_err()).contains("--viewers 3"));
+
+    // A server with a token refuses a hello without one; loadgen passes its reason on.
+    let server = start(ServerConfig {
+        token: Some("s3cret".into()),
+        max_views: 4,
+        ..test_config()
+    })
+    .await;
+    let addr = server.local_addr();
+    let e = run(&config_for(addr), "", &|_| {}).await.unwrap_err();
+    let msg = format!("{e:#}");
+    assert!(
+        msg.contains("refused the hello") && msg.contains("unauthorized"),
+        "{msg}"
+    );
+    // More views than the server renders: refused before connecting anyone.
+    let too_many = LoadgenConfig {
+        viewers: vec![8],
+        token: Some("s3cret".into()),
+        ..config_for(addr)
+    };
+    let msg = format!("{:#}", run(&too_many, "", &|_| {}).await.unwrap_err());
+    assert!(
+        msg.contains("--viewers 8") && msg.contains("at most 4"),
+        "{msg}"
+    );
+    server.shutdown().await.unwrap();
+}
