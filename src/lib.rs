@@ -5,6 +5,7 @@
 //! - [`scene`]: scene files, built-in scenes, glTF, the BVH for shadow rays.
 //! - [`gpu`]: device selection and buffer helpers.
 //! - [`render`]: the froxel pipeline (`reference` and `shared` modes).
+//! - [`bench`]: `fogcast bench`, how each cost grows with the number of viewers.
 //! - [`metrics`]: image error (FLIP, PSNR, RMSE).
 //! - [`server`]: `fogcast serve`, streaming every viewer's frames to browsers over WebSocket.
 //! - [`truth`]: the CPU ground-truth renderer every error is measured against.
@@ -13,6 +14,7 @@
 #![warn(unreachable_pub)]
 #![forbid(unsafe_code)]
 
+pub mod bench;
 pub mod eval;
 pub mod gpu;
 pub mod metrics;

@@ -1,4 +1,5 @@
-//! fogcast command line: `render` (offline frames + stats), `serve` (stream to browsers).
+//! fogcast command line: `render` (offline frames + stats), `serve` (stream to browsers),
+//! `eval` (error vs cost) and `bench` (cost vs number of viewers).
 
 use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand};
@@ -28,6 +29,8 @@ enum Command {
     Serve(fogcast::server::ServeArgs),
     /// Measure error and cost: truth, reference and a sweep of shared settings on the same frames.
     Eval(EvalArgs),
+    /// Measure how each cost grows with the number of viewers: reference vs shared on the same frames.
+    Bench(fogcast::bench::BenchArgs),
 }
 
 #[derive(Args)]
@@ -176,6 +179,7 @@ fn main() {
         Command::Render(a) => render(a),
         Command::Serve(a) => fogcast::server::serve(&a),
         Command::Eval(a) => eval(a),
+        Command::Bench(a) => fogcast::bench::bench(&a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
@@ -247,7 +251,7 @@ fn progress_printer(label: &str) -> impl Fn(usize, usize) + Sync + '_ {
     move |done, total| {
         let pct = done * 50 / total.max(1);
         if last.swap(pct, std::sync::atomic::Ordering::Relaxed) != pct {
-            eprint!("\r{label} [{:<50}] {:3}%", "#".repeat(pct), pct * 2);
+            eprint!("\r{}", fogcast::report::progress_line(label, done, total));
             if done == total {
                 eprintln!();
             }
