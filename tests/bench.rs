@@ -156,6 +156,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
                 "shared vs reference mean FLIP {flip}"
             );
             assert!(number(p, "flip_vs_reference.max") >= flip);
+            assert!(number(p, "frame_gpu_vs_reference.median") > 0.0);
             assert_eq!(
                 number(p, "flip_vs_reference.images"),
                 viewers * 2.0,
@@ -164,6 +165,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         } else {
             assert!(!names.contains(&"shared_grid"));
             assert!(p["flip_vs_reference"].is_null());
+            assert!(p["frame_gpu_vs_reference"].is_null());
             assert_eq!(number(p, "rays.shared_grid"), 0.0);
         }
     }

@@ -203,6 +203,9 @@ pub struct BenchPoint {
     pub frame_gpu_ms: Spread,
     /// Host time from upload to readback (includes the readback and any stall).
     pub frame_host_ms: Spread,
+    /// This frame's GPU time / `reference`'s on the same frame, over the measured frames
+    /// (paired, so load from other processes that drifts over a point cancels out).
+    pub frame_gpu_vs_reference: Option<Spread>,
     /// GPU time of every stage that ran.
     pub stages: Vec<StageSpread>,
     /// Shadow rays per stage, mean per measured frame.
@@ -227,6 +230,9 @@ pub struct BenchReport {
     pub adapter: String,
     /// CPU threads available to this process.
     pub cpu_threads: usize,
+    /// The machine's 1-minute load average when the benchmark started and ended (Linux;
+    /// above `cpu_threads` other processes were competing for the CPU lavapipe runs on).
+    pub load_average: Option<[f64; 2]>,
     /// Viewer width, pixels.
     pub width: u32,
     /// Viewer height, pixels.
@@ -273,14 +279,14 @@ struct Samples {
     rays: Vec<RayCounts>,
     voxels: Vec<u64>,
     flip: Vec<f64>,
+    vs_reference: Vec<f64>,
     last: Option<FrameOutput>,
 }
 
 impl Samples {
     fn add(&mut self, out: FrameOutput) {
         let s = &out.stats;
-        self.frame_gpu_ms
-            .push(s.stage_gpu_ms.iter().map(|t| t.gpu_ms).sum());
+        self.frame_gpu_ms.push(frame_gpu_ms(&out));
         self.frame_host_ms.push(s.frame_ms);
         for t in &s.stage_gpu_ms {
             match self.stage_ms.iter_mut().find(|(n, _)| *n == t.stage) {
@@ -305,6 +311,8 @@ impl Samples {
             frames: self.rays.len() as u32,
             frame_gpu_ms: Spread::of(&self.frame_gpu_ms),
             frame_host_ms: Spread::of(&self.frame_host_ms),
+            frame_gpu_vs_reference: (!self.vs_reference.is_empty())
+                .then(|| Spread::of(&self.vs_reference)),
             stages: self
                 .stage_ms
                 .iter()
@@ -344,6 +352,11 @@ impl Samples {
     }
 }
 
+/// A frame's GPU time: the sum of its stages.
+fn frame_gpu_ms(out: &FrameOutput) -> f64 {
+    out.stats.stage_gpu_ms.iter().map(|t| t.gpu_ms).sum()
+}
+
 /// Per-image mean FLIP of `test` against `reference`, viewer by viewer.
 fn flip_per_viewer(reference: &FrameOutput, test: &FrameOutput) -> anyhow::Result<Vec<f64>> {
     reference
@@ -354,10 +367,21 @@ fn flip_per_viewer(reference: &FrameOutput, test: &FrameOutput) -> anyhow::Resul
         .collect()
 }
 
+/// The 1-minute load average from `/proc/loadavg` (none where there is no such file).
+fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
 fn check(cfg: &BenchConfig) -> anyhow::Result<()> {
     let counts = |flag: &str, v: &[usize]| -> anyhow::Result<()> {
-        for &n in v {
+        for (i, &n) in v.iter().enumerate() {
             anyhow::ensure!((1..=64).contains(&n), "{flag} {n}: must be 1..=64");
+            anyhow::ensure!(!v[..i].contains(&n), "{flag}: {n} is given twice");
         }
         Ok(())
     };
@@ -384,10 +408,14 @@ fn check(cfg: &BenchConfig) -> anyhow::Result<()> {
         "--time {}: must be finite",
         cfg.time_s
     );
-    for &o in &cfg.overlaps_pct {
+    for (i, &o) in cfg.overlaps_pct.iter().enumerate() {
         anyhow::ensure!(
             o.is_finite() && (0.0..=100.0).contains(&o),
             "--overlap {o}: must be a percentage, 0..=100"
+        );
+        anyhow::ensure!(
+            !cfg.overlaps_pct[..i].contains(&o),
+            "--overlap: {o} is given twice"
         );
     }
     anyhow::ensure!(
@@ -412,6 +440,7 @@ fn check(cfg: &BenchConfig) -> anyhow::Result<()> {
 pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<BenchReport> {
     check(cfg)?;
     let started = std::time::Instant::now();
+    let load_at_start = load_average();
     let scene = Arc::new(Scene::load(&cfg.scene)?);
     std::fs::create_dir_all(&cfg.out)
         .map_err(|e| anyhow::anyhow!("--out {}: cannot create it: {e}", cfg.out.display()))?;
@@ -482,8 +511,12 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
                 let ref_out = outputs[r].as_ref().expect("rendered above");
                 for (i, o) in outputs.iter().enumerate() {
                     if i != r {
-                        let flip = flip_per_viewer(ref_out, o.as_ref().expect("rendered above"))?;
-                        samples[i].flip.extend(flip);
+                        let o = o.as_ref().expect("rendered above");
+                        samples[i].flip.extend(flip_per_viewer(ref_out, o)?);
+                        let base = frame_gpu_ms(ref_out);
+                        if base > 0.0 {
+                            samples[i].vs_reference.push(frame_gpu_ms(o) / base);
+                        }
                     }
                 }
             }
@@ -504,6 +537,7 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         scene: scene.name.clone(),
         adapter: GpuContext::last_adapter_name(),
         cpu_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        load_average: load_at_start.zip(load_average()).map(|(a, b)| [a, b]),
         width: cfg.width,
         height: cfg.height,
         warmup: cfg.warmup,

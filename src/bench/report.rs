@@ -158,7 +158,14 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
     for c in challengers(r) {
         if let (Some(reference), Some(p)) = (reference_hi, point(r, Scenario::Path, c, hi)) {
             out.push(Check {
-                what: format!("{c}: frame GPU ms at {hi} viewers / reference's"),
+                what: format!(
+                    "{c}: frame GPU ms at {hi} viewers / reference's (median of per-frame ratios)"
+                ),
+                value: paired_ratio(p, reference),
+                bound: Some(MAX_TIME_RATIO),
+            });
+            out.push(Check {
+                what: format!("{c}: the same, as the ratio of the two medians"),
                 value: ratio(p.frame_gpu_ms.median, reference.frame_gpu_ms.median),
                 bound: Some(MAX_TIME_RATIO),
             });
@@ -191,6 +198,15 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
     out
 }
 
+/// `p`'s frame GPU time relative to `reference`'s point `q`: the median of the per-frame
+/// ratios when they were measured, else the ratio of the medians.
+fn paired_ratio(p: &BenchPoint, q: &BenchPoint) -> f64 {
+    p.frame_gpu_vs_reference.map_or_else(
+        || ratio(p.frame_gpu_ms.median, q.frame_gpu_ms.median),
+        |s| s.median,
+    )
+}
+
 fn ratio(a: f64, b: f64) -> f64 {
     if b > 0.0 {
         a / b
@@ -216,6 +232,7 @@ fn csv(r: &BenchReport) -> Table {
         "frame_gpu_ms_min",
         "frame_gpu_ms_max",
         "frame_host_ms_median",
+        "frame_gpu_vs_reference_median",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -260,6 +277,8 @@ fn csv(r: &BenchReport) -> Table {
             format!("{:.3}", p.frame_gpu_ms.min),
             format!("{:.3}", p.frame_gpu_ms.max),
             format!("{:.3}", p.frame_host_ms.median),
+            p.frame_gpu_vs_reference
+                .map_or(String::new(), |s| format!("{:.4}", s.median)),
         ];
         row.extend(stages.iter().map(|s| format!("{:.3}", stage_ms(p, s))));
         let [gx, gy, gz] = p.grid_dims;
@@ -454,7 +473,7 @@ fn overlap_tables(r: &BenchReport) -> String {
                             if what == "fog rays" {
                                 format!("{a:.0} / {b:.0} ({:.2})", ratio(a, b))
                             } else {
-                                format!("{a:.1} / {b:.1} ({:.2})", ratio(a, b))
+                                format!("{a:.1} / {b:.1} ({:.2})", paired_ratio(p, q))
                             }
                         }
                         (Some(p), None) => format!("{:.1}", value(p)),
@@ -480,8 +499,9 @@ fn markdown(r: &BenchReport) -> String {
          configurations take turns frame by frame on the same cameras. Times are GPU \
          timestamp queries on `{adapter}` with {threads} CPU thread(s): the median over the \
          measured frames, the range in brackets; a frame's time is the sum of its stages. \
-         Rays and voxels are means per frame. FLIP against `reference`: {flip}. The run took \
-         {elapsed:.0} s.\n\n{configs}",
+         Rays and voxels are means per frame. Ratios of times to `reference` are medians of \
+         per-frame ratios (the two ran back to back on the same cameras). FLIP against \
+         `reference`: {flip}. The run took {elapsed:.0} s; {load}.\n\n{configs}",
         scene = r.scene,
         cmd = r.command,
         w = r.width,
@@ -494,6 +514,13 @@ fn markdown(r: &BenchReport) -> String {
         threads = r.cpu_threads,
         flip = r.flip_frames,
         elapsed = r.elapsed_s,
+        load = r
+            .load_average
+            .map_or("load average unknown".into(), |[a, b]| format!(
+            "the machine's 1-minute load average was {a:.1} at the start and {b:.1} at the end \
+             (above {} other processes competed for the CPU lavapipe renders on)",
+            r.cpu_threads
+        )),
         configs = configs_table(r).to_markdown(),
     );
     if !viewer_counts(r, path).is_empty() {
@@ -501,7 +528,7 @@ fn markdown(r: &BenchReport) -> String {
             r,
             path,
             &|p| ms(&p.frame_gpu_ms),
-            Some(&|p, q| ratio(p.frame_gpu_ms.median, q.frame_gpu_ms.median)),
+            Some(&|p, q| paired_ratio(p, q)),
         );
         let rays = per_config_table(
             r,
@@ -659,7 +686,7 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
     }
     let overlaps = overlaps(r);
     if !overlaps.is_empty() && has_reference(r) {
-        let ratio_series = |y: &dyn Fn(&BenchPoint) -> f64| -> Vec<Series> {
+        let ratio_series = |of: &PairRatio| -> Vec<Series> {
             let mut series = Vec::new();
             let mut xs = Vec::new();
             for c in challengers(r) {
@@ -669,7 +696,7 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
                         .into_iter()
                         .filter_map(|p| {
                             point(r, s, "reference", p.viewers)
-                                .map(|q| (p.viewers as f64, ratio(y(p), y(q))))
+                                .map(|q| (p.viewers as f64, of(p, q)))
                         })
                         .collect();
                     xs.extend(points.iter().map(|p| p.0));
@@ -696,8 +723,8 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
             &out.join("overlap_time.png"),
             &format!("{}: fixed overlap, frame GPU time / reference's", r.scene),
             "viewers",
-            "frame GPU ms / reference (median)",
-            &ratio_series(&|p| p.frame_gpu_ms.median),
+            "frame GPU ms / reference (median per-frame ratio)",
+            &ratio_series(&paired_ratio),
             true,
             false,
             false,
@@ -707,7 +734,7 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
             &format!("{}: fixed overlap, fog rays / reference's", r.scene),
             "viewers",
             "fog shadow rays / reference",
-            &ratio_series(&|p| p.rays.fog_total as f64),
+            &ratio_series(&|p, q| ratio(p.rays.fog_total as f64, q.rays.fog_total as f64)),
             true,
             false,
             false,
