@@ -1,5 +1,6 @@
 # fogcast: `make run` serves http://127.0.0.1:8080, `make render` renders PNGs offline,
-# `make test` runs every test (installing lavapipe and Chromium first).
+# `make bench` measures cost vs viewers (docs/performance.md), `make test` runs every test
+# (installing lavapipe and Chromium first).
 CARGO ?= cargo
 SCENE ?= colonnade
 ADDR ?= 127.0.0.1

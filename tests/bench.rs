@@ -114,6 +114,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
             "frame_gpu_ms.min",
             "frame_gpu_ms.max",
             "frame_host_ms.median",
+            "fog_gpu_ms.median",
             "rays.shared_grid",
             "rays.shadow_frustum",
             "rays.froxel_lighting",

@@ -34,6 +34,15 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::Arc;
 
+/// The stages of paper 000 §3.1 (the fog): what the paper's tables time. The others
+/// (`gbuffer`, `composite`) cost the same in every mode.
+pub const FOG_STAGES: [&str; 4] = [
+    "shared_grid",
+    "shadow_frustum",
+    "froxel_lighting",
+    "volume_integration",
+];
+
 /// Scene time between consecutive frames: a 30 fps stream.
 pub const FRAME_DT_S: f32 = 1.0 / 30.0;
 
@@ -201,6 +210,8 @@ pub struct BenchPoint {
     pub frames: u32,
     /// GPU time of the whole frame: the sum of the stage times.
     pub frame_gpu_ms: Spread,
+    /// GPU time of the fog stages ([`FOG_STAGES`]) alone.
+    pub fog_gpu_ms: Spread,
     /// Host time from upload to readback (includes the readback and any stall).
     pub frame_host_ms: Spread,
     /// This frame's GPU time / `reference`'s on the same frame, over the measured frames
@@ -274,6 +285,7 @@ pub struct Progress {
 #[derive(Default)]
 struct Samples {
     frame_gpu_ms: Vec<f64>,
+    fog_gpu_ms: Vec<f64>,
     frame_host_ms: Vec<f64>,
     stage_ms: Vec<(String, Vec<f64>)>,
     rays: Vec<RayCounts>,
@@ -287,6 +299,13 @@ impl Samples {
     fn add(&mut self, out: FrameOutput) {
         let s = &out.stats;
         self.frame_gpu_ms.push(frame_gpu_ms(&out));
+        self.fog_gpu_ms.push(
+            s.stage_gpu_ms
+                .iter()
+                .filter(|t| FOG_STAGES.contains(&t.stage.as_str()))
+                .map(|t| t.gpu_ms)
+                .sum(),
+        );
         self.frame_host_ms.push(s.frame_ms);
         for t in &s.stage_gpu_ms {
             match self.stage_ms.iter_mut().find(|(n, _)| *n == t.stage) {
@@ -310,6 +329,7 @@ impl Samples {
             mode: v.settings.mode,
             frames: self.rays.len() as u32,
             frame_gpu_ms: Spread::of(&self.frame_gpu_ms),
+            fog_gpu_ms: Spread::of(&self.fog_gpu_ms),
             frame_host_ms: Spread::of(&self.frame_host_ms),
             frame_gpu_vs_reference: (!self.vs_reference.is_empty())
                 .then(|| Spread::of(&self.vs_reference)),

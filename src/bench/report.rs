@@ -169,6 +169,22 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
                 value: ratio(p.frame_gpu_ms.median, reference.frame_gpu_ms.median),
                 bound: Some(MAX_TIME_RATIO),
             });
+            out.push(Check {
+                what: format!(
+                    "{c}: fog stages only ({}) at {hi} viewers / reference's",
+                    super::FOG_STAGES.join(", ")
+                ),
+                value: ratio(p.fog_gpu_ms.median, reference.fog_gpu_ms.median),
+                bound: None,
+            });
+            let grid_and_frustum = stage_ms(p, "shared_grid") + stage_ms(p, "shadow_frustum");
+            out.push(Check {
+                what: format!(
+                    "{c}: frame at {hi} viewers / reference's if its grid and frustum stages took no time (the floor the other stages set)"
+                ),
+                value: ratio(p.frame_gpu_ms.median - grid_and_frustum, reference.frame_gpu_ms.median),
+                bound: None,
+            });
         }
         if let (Some(a), Some(b)) = (
             point(r, Scenario::Path, c, lo),
@@ -233,6 +249,7 @@ fn csv(r: &BenchReport) -> Table {
         "frame_gpu_ms_max",
         "frame_host_ms_median",
         "frame_gpu_vs_reference_median",
+        "fog_gpu_ms_median",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -279,6 +296,7 @@ fn csv(r: &BenchReport) -> Table {
             format!("{:.3}", p.frame_host_ms.median),
             p.frame_gpu_vs_reference
                 .map_or(String::new(), |s| format!("{:.4}", s.median)),
+            format!("{:.3}", p.fog_gpu_ms.median),
         ];
         row.extend(stages.iter().map(|s| format!("{:.3}", stage_ms(p, s))));
         let [gx, gy, gz] = p.grid_dims;
@@ -530,6 +548,12 @@ fn markdown(r: &BenchReport) -> String {
             &|p| ms(&p.frame_gpu_ms),
             Some(&|p, q| paired_ratio(p, q)),
         );
+        let fog = per_config_table(
+            r,
+            path,
+            &|p| ms(&p.fog_gpu_ms),
+            Some(&|p, q| ratio(p.fog_gpu_ms.median, q.fog_gpu_ms.median)),
+        );
         let rays = per_config_table(
             r,
             path,
@@ -578,17 +602,20 @@ fn markdown(r: &BenchReport) -> String {
         }
         md += &format!(
             "\n## Frame time, GPU ms (viewers spread along the camera path; paper Tables 1–3)\n\n{}\
+             \n## Fog stages only ({fog_stages}), GPU ms\n\n{}\
              \n## Shadow rays per frame, fog stages (× its own fewest-viewer count; paper Figure 11)\n\n{}\
              \n## Memory, MiB: total (shared + viewers × per viewer; paper Figure 14)\n\n{}\
              \n## Shared-grid voxels updated per frame\n\n{}\
              \n## Where the time goes: GPU ms per stage, median (paper Figure 13)\n\n{}\
              \n## Mean FLIP against reference on the same frames\n\n{}",
             time.to_markdown(),
+            fog.to_markdown(),
             rays.to_markdown(),
             memory.to_markdown(),
             voxels.to_markdown(),
             stage_table(r, path).to_markdown(),
             flip.to_markdown(),
+            fog_stages = super::FOG_STAGES.join(", "),
         );
         let checks = checks(r);
         if !checks.is_empty() {
