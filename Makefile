@@ -1,5 +1,6 @@
 # fogcast: `make run` serves http://127.0.0.1:8080, `make render` renders PNGs offline,
-# `make test` runs every test (installing lavapipe and Chromium first).
+# `make bench` measures cost vs viewers (docs/performance.md), `make test` runs every test
+# (installing lavapipe and Chromium first).
 CARGO ?= cargo
 SCENE ?= colonnade
 ADDR ?= 127.0.0.1
@@ -7,7 +8,7 @@ PORT ?= 8080
 # Extra `fogcast serve` flags, e.g. SERVE_ARGS="--config fogcast.toml --max-views 8".
 SERVE_ARGS ?=
 
-.PHONY: deps deps-runtime build run serve render test lint fmt clean
+.PHONY: deps deps-runtime build run serve render bench test lint fmt clean
 
 # Everything: the Vulkan driver (lavapipe) and Chromium for the browser test.
 deps:
@@ -27,6 +28,21 @@ serve:
 
 render: deps-runtime build
 	./target/release/fogcast render --scene $(SCENE) --viewers 4 --width 640 --height 360 --out out/$(SCENE)
+
+# The default scaling sweep of docs/performance.md: 1-16 viewers along each scene's camera
+# path, reference vs shared on the same frames, at 320x180 per viewer; colonnade also with
+# 0.5 m and 0.125 m grids and the fixed-overlap scenario (paper Figure 12). Reports and
+# plots go to out/bench/<scene>/. About 15 minutes on 2 cores with lavapipe. The dev
+# profile (opt-level 2, the one `make test` builds) is enough: the GPU work runs in Mesa.
+# Flags for every run, e.g. BENCH_ARGS="--frames 3 --width 640 --height 360".
+BENCH_ARGS ?=
+FOGCAST_DEV := ./target/debug/fogcast
+
+bench: deps-runtime
+	$(CARGO) build
+	$(FOGCAST_DEV) bench --scene colonnade --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --overlap 10,25,50,75,100 $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene street $(BENCH_ARGS)
 
 test: deps
 	$(CARGO) test -- --test-threads=1

@@ -6,6 +6,7 @@
 //! - [`gpu`]: device selection and buffer helpers.
 //! - [`loadgen`]: `fogcast loadgen`, real WebSocket viewers loading a running server.
 //! - [`render`]: the froxel pipeline (`reference` and `shared` modes).
+//! - [`bench`]: `fogcast bench`, how each cost grows with the number of viewers.
 //! - [`metrics`]: image error (FLIP, PSNR, RMSE).
 //! - [`server`]: `fogcast serve`, streaming every viewer's frames to browsers over WebSocket.
 //! - [`truth`]: the CPU ground-truth renderer every error is measured against.
@@ -14,6 +15,7 @@
 #![warn(unreachable_pub)]
 #![forbid(unsafe_code)]
 
+pub mod bench;
 pub mod eval;
 pub mod gpu;
 pub mod loadgen;

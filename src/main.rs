@@ -1,5 +1,6 @@
 //! fogcast command line: `render` (offline frames + stats), `serve` (stream to browsers),
-//! `loadgen` (load a running server with WebSocket viewers).
+//! `eval` (error vs cost), `bench` (cost vs number of viewers) and `loadgen` (load a
+//! running server with WebSocket viewers).
 
 use anyhow::Context as _;
 use clap::{Args, Parser, Subcommand};
@@ -31,6 +32,8 @@ enum Command {
     Eval(EvalArgs),
     /// Load a running server with N real WebSocket viewers per sweep point; report fps, latency, bandwidth.
     Loadgen(fogcast::loadgen::LoadgenArgs),
+    /// Measure how each cost grows with the number of viewers: reference vs shared on the same frames.
+    Bench(fogcast::bench::BenchArgs),
 }
 
 #[derive(Args)]
@@ -193,6 +196,7 @@ fn main() {
         Command::Serve(a) => fogcast::server::serve(&a),
         Command::Eval(a) => eval(a),
         Command::Loadgen(a) => fogcast::loadgen::loadgen(&a),
+        Command::Bench(a) => fogcast::bench::bench(&a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
@@ -264,7 +268,7 @@ fn progress_printer(label: &str) -> impl Fn(usize, usize) + Sync + '_ {
     move |done, total| {
         let pct = done * 50 / total.max(1);
         if last.swap(pct, std::sync::atomic::Ordering::Relaxed) != pct {
-            eprint!("\r{label} [{:<50}] {:3}%", "#".repeat(pct), pct * 2);
+            eprint!("\r{}", fogcast::report::progress_line(label, done, total));
             if done == total {
                 eprintln!();
             }

@@ -223,6 +223,128 @@ pub fn plot(
     Ok(())
 }
 
+/// One bar of a stacked-bar chart: a short tag printed above it and one value per segment.
+pub struct Bar {
+    /// Printed above the bar (e.g. "R" for reference).
+    pub tag: String,
+    /// Segment heights, bottom first, in the order of the chart's segment names.
+    pub segments: Vec<f64>,
+}
+
+/// Bars side by side above one x-axis label.
+pub struct BarGroup {
+    /// The x-axis label of the group.
+    pub label: String,
+    /// Its bars, left to right.
+    pub bars: Vec<Bar>,
+}
+
+/// Draws groups of stacked bars (paper 000 Figure 13's shape): each segment a colour
+/// named in the legend, each bar tagged above, each group labelled on the x axis.
+pub fn stacked_bars(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    segment_names: &[String],
+    groups: &[BarGroup],
+) -> anyhow::Result<()> {
+    use plotters::style::text_anchor::{HPos, Pos, VPos};
+    ensure_font()?;
+    let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("plot {}: {e:?}", path.display());
+    let per_group = groups
+        .iter()
+        .map(|g| g.bars.len())
+        .max()
+        .unwrap_or(1)
+        .max(1);
+    let top = groups
+        .iter()
+        .flat_map(|g| &g.bars)
+        .map(|b| b.segments.iter().sum::<f64>())
+        .fold(0.0, f64::max);
+    let y1 = if top > 0.0 { top * 1.12 } else { 1.0 };
+    let x1 = groups.len() as f64 - 0.5;
+    let root = BitMapBackend::new(path, (900, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(14)
+        .x_label_area_size(44)
+        .y_label_area_size(64)
+        .build_cartesian_2d(-0.5..x1, 0.0..y1)
+        .map_err(|e| err(&e))?;
+    let group_label = |x: &f64| {
+        let i = x.round();
+        if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < groups.len() {
+            groups[i as usize].label.clone()
+        } else {
+            String::new()
+        }
+    };
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(4 * groups.len() + 2)
+        .x_label_formatter(&group_label)
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(|e| err(&e))?;
+    let width = 0.8 / per_group as f64;
+    let tag_style =
+        TextStyle::from(("sans-serif", 12).into_font()).pos(Pos::new(HPos::Center, VPos::Bottom));
+    for (gi, g) in groups.iter().enumerate() {
+        for (bi, bar) in g.bars.iter().enumerate() {
+            let x0 = gi as f64 - 0.4 + bi as f64 * width + 0.05 * width;
+            let x1 = x0 + 0.9 * width;
+            let mut y = 0.0;
+            for (si, &v) in bar.segments.iter().enumerate() {
+                chart
+                    .draw_series(std::iter::once(Rectangle::new(
+                        [(x0, y), (x1, y + v)],
+                        palette(si).filled(),
+                    )))
+                    .map_err(|e| err(&e))?;
+                y += v;
+            }
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    bar.tag.clone(),
+                    ((x0 + x1) * 0.5, y),
+                    tag_style.clone(),
+                )))
+                .map_err(|e| err(&e))?;
+        }
+    }
+    for (si, name) in segment_names.iter().enumerate() {
+        let color = palette(si);
+        chart
+            .draw_series(std::iter::empty::<Rectangle<(f64, f64)>>())
+            .map_err(|e| err(&e))?
+            .label(name.clone())
+            .legend(move |(x, y)| Rectangle::new([(x - 6, y - 6), (x + 6, y + 6)], color.filled()));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font(("sans-serif", 13))
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .map_err(|e| err(&e))?;
+    root.present()
+        .with_context(|| format!("writing plot {}", path.display()))?;
+    Ok(())
+}
+
+/// `label [#####     ]  40%`: a 50-character progress bar for stderr.
+pub fn progress_line(label: &str, done: usize, total: usize) -> String {
+    let pct = (done.min(total) * 50).checked_div(total).unwrap_or(50);
+    format!("{label} [{:<50}] {:3}%", "#".repeat(pct), pct * 2)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -231,6 +353,18 @@ mod tests {
     fn pareto_front_keeps_only_undominated_points() {
         let pts = [(1.0, 5.0), (2.0, 3.0), (3.0, 4.0), (4.0, 1.0), (2.5, 3.0)];
         assert_eq!(pareto_front(&pts), vec![0, 1, 3]);
+    }
+
+    #[test]
+    fn progress_line_fills_in_proportion() {
+        assert!(progress_line("x", 0, 10).ends_with("]   0%"));
+        assert!(progress_line("x", 5, 10).contains(&format!(
+            "[{}{}]",
+            "#".repeat(25),
+            " ".repeat(25)
+        )));
+        assert!(progress_line("x", 10, 10).ends_with("] 100%"));
+        assert!(progress_line("x", 0, 0).ends_with("] 100%"));
     }
 
     #[test]

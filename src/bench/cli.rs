@@ -1,0 +1,131 @@
+//! `fogcast bench` flags and the progress bar.
+
+use super::{configurations, BenchConfig, Progress};
+use crate::render::Mode;
+use crate::scene::Scene;
+use std::io::{IsTerminal as _, Write as _};
+use std::path::{Path, PathBuf};
+
+/// Flags of `fogcast bench`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchArgs {
+    /// Built-in scene (colonnade, street, islands), a scene .toml, or a .glb/.gltf file.
+    #[arg(long, default_value = "colonnade")]
+    pub scene: String,
+    /// Viewer counts of the path scenario (viewers spread along the scene's camera loop).
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3,4,6,8,12,16")]
+    pub viewers: Vec<usize>,
+    /// Modes to run, each with the paper's defaults and the scene's voxel size.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "reference,shared"
+    )]
+    pub modes: Vec<Mode>,
+    /// A further `shared` configuration, `name:key=value,…` (keys: mode, voxel, lookup,
+    /// parity, frustum, frustum_px, froxel_px, slices, temporal, depth_curve); repeatable.
+    /// Example: --variant 'paper-fast:voxel=0.5,lookup=nearest,parity=on'.
+    #[arg(long = "variant")]
+    pub variants: Vec<String>,
+    /// Viewer width in pixels.
+    #[arg(long, default_value_t = 320)]
+    pub width: u32,
+    /// Viewer height in pixels.
+    #[arg(long, default_value_t = 180)]
+    pub height: u32,
+    /// Frames rendered at each point before measuring.
+    #[arg(long, default_value_t = 2)]
+    pub warmup: u32,
+    /// Frames measured at each point.
+    #[arg(long, default_value_t = 5)]
+    pub frames: u32,
+    /// Scene time of each point's first frame, seconds.
+    #[arg(long, default_value_t = 0.0)]
+    pub time: f32,
+    /// Fixed-overlap scenario (paper Figure 12): overlaps of neighbouring frustums in
+    /// percent, e.g. 10,25,50,75,100 (default: none, skip the scenario).
+    #[arg(long, value_delimiter = ',')]
+    pub overlap: Vec<f32>,
+    /// Viewer counts of the fixed-overlap scenario.
+    #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
+    pub overlap_viewers: Vec<usize>,
+    /// Output folder [default: out/bench/<scene file stem>].
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+impl BenchArgs {
+    /// The benchmark these flags describe (loads the scene for its voxel size).
+    pub fn config(&self, command: String) -> anyhow::Result<BenchConfig> {
+        let scene = Scene::load(&self.scene)?;
+        let configs = configurations(&self.modes, &self.variants, scene.render.voxel_size_m)?;
+        let out = self.out.clone().unwrap_or_else(|| {
+            let stem = Path::new(&self.scene)
+                .file_stem()
+                .map_or_else(|| "scene".into(), |s| s.to_string_lossy().into_owned());
+            Path::new("out/bench").join(stem)
+        });
+        Ok(BenchConfig {
+            scene: self.scene.clone(),
+            viewers: self.viewers.clone(),
+            configs,
+            width: self.width,
+            height: self.height,
+            warmup: self.warmup,
+            frames: self.frames,
+            time_s: self.time,
+            overlaps_pct: self.overlap.clone(),
+            overlap_viewers: self.overlap_viewers.clone(),
+            out,
+            command,
+        })
+    }
+}
+
+/// Runs `fogcast bench` with a progress bar on stderr; prints where the report went.
+pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let cfg = args.config(command)?;
+    let started = std::time::Instant::now();
+    let tty = std::io::stderr().is_terminal();
+    let last_step = std::sync::atomic::AtomicUsize::new(usize::MAX);
+    let report = super::run(&cfg, &|p: &Progress| {
+        // On a terminal the bar redraws in place; in a log, a line every 5 %.
+        let step = p.done * 20 / p.total.max(1);
+        if !tty && last_step.swap(step, std::sync::atomic::Ordering::Relaxed) == step {
+            return;
+        }
+        let elapsed = started.elapsed().as_secs_f64();
+        let eta = if p.done > 0 {
+            format!(
+                "{:.0} s left",
+                elapsed / p.done as f64 * (p.total - p.done) as f64
+            )
+        } else {
+            String::new()
+        };
+        let line = format!(
+            "{} {eta:<12} {:<52}",
+            crate::report::progress_line("bench", p.done, p.total),
+            p.label
+        );
+        if tty {
+            eprint!("\r{line}");
+        } else {
+            eprintln!("{}", line.trim_end());
+        }
+        let _ = std::io::stderr().flush();
+    })?;
+    if tty {
+        eprintln!();
+    }
+    println!(
+        "{} points on {} in {:.0} s; report in {}",
+        report.points.len(),
+        report.adapter,
+        report.elapsed_s,
+        cfg.out.join("bench.md").display()
+    );
+    Ok(())
+}

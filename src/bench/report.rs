@@ -1,0 +1,783 @@
+//! Writes a [`BenchReport`]: `bench.json` (everything), `bench.csv` (a row per point),
+//! `bench.md` (tables in the shape of paper 000's Tables 1–3, the stage breakdown, the
+//! issue-5 checks, the fixed-overlap results) and PNG plots.
+
+use super::{BenchPoint, BenchReport, Scenario};
+use crate::render::Mode;
+use crate::report::{plot, stacked_bars, Bar, BarGroup, Series, Table};
+use std::path::Path;
+
+const MIB: f64 = 1048576.0;
+
+/// Issue 5's bounds: shared frame time at the most viewers ≤ 0.6 × reference's there,
+/// shared rays at the most viewers ≤ 6 × its rays at one viewer, FLIP ≤ 0.05 everywhere.
+pub const MAX_TIME_RATIO: f64 = 0.6;
+/// See [`MAX_TIME_RATIO`].
+pub const MAX_RAY_GROWTH: f64 = 6.0;
+/// See [`MAX_TIME_RATIO`].
+pub const MAX_FLIP: f64 = 0.05;
+
+/// One of issue 5's acceptance checks, evaluated on a report.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Check {
+    /// What is checked, with the viewer counts used.
+    pub what: String,
+    /// The measured value.
+    pub value: f64,
+    /// The bound it must stay at or under (none: reported only).
+    pub bound: Option<f64>,
+}
+
+impl Check {
+    /// Whether the value is within the bound (always true without one).
+    pub fn passed(&self) -> bool {
+        self.bound.is_none_or(|b| self.value <= b)
+    }
+}
+
+/// Points of one scenario and configuration, by viewer count.
+fn series_of<'a>(r: &'a BenchReport, scenario: Scenario, config: &str) -> Vec<&'a BenchPoint> {
+    let mut v: Vec<&BenchPoint> = r
+        .points
+        .iter()
+        .filter(|p| p.scenario == scenario && p.config == config)
+        .collect();
+    v.sort_by_key(|p| p.viewers);
+    v
+}
+
+fn point<'a>(
+    r: &'a BenchReport,
+    scenario: Scenario,
+    config: &str,
+    viewers: usize,
+) -> Option<&'a BenchPoint> {
+    r.points
+        .iter()
+        .find(|p| p.scenario == scenario && p.config == config && p.viewers == viewers)
+}
+
+fn viewer_counts(r: &BenchReport, scenario: Scenario) -> Vec<usize> {
+    let mut v: Vec<usize> = r
+        .points
+        .iter()
+        .filter(|p| p.scenario == scenario)
+        .map(|p| p.viewers)
+        .collect();
+    v.sort_unstable();
+    v.dedup();
+    v
+}
+
+fn overlaps(r: &BenchReport) -> Vec<f32> {
+    let mut v: Vec<f32> = Vec::new();
+    for p in &r.points {
+        if let Scenario::Overlap { overlap_pct } = p.scenario {
+            if !v.contains(&overlap_pct) {
+                v.push(overlap_pct);
+            }
+        }
+    }
+    v
+}
+
+fn has_reference(r: &BenchReport) -> bool {
+    r.configs.iter().any(|c| c.name == "reference")
+}
+
+/// The configurations compared against `reference` (all but it).
+fn challengers(r: &BenchReport) -> Vec<&str> {
+    r.configs
+        .iter()
+        .map(|c| c.name.as_str())
+        .filter(|n| *n != "reference")
+        .collect()
+}
+
+/// Stage names in pipeline order: the longest stage list of any point (shared runs them
+/// all, in order), then any stage it lacks.
+fn stage_names(r: &BenchReport) -> Vec<String> {
+    let mut names: Vec<String> = r
+        .points
+        .iter()
+        .max_by_key(|p| p.stages.len())
+        .map(|p| p.stages.iter().map(|s| s.stage.clone()).collect())
+        .unwrap_or_default();
+    for p in &r.points {
+        for s in &p.stages {
+            if !names.contains(&s.stage) {
+                names.push(s.stage.clone());
+            }
+        }
+    }
+    names
+}
+
+fn stage_ms(p: &BenchPoint, stage: &str) -> f64 {
+    p.stages
+        .iter()
+        .find(|s| s.stage == stage)
+        .map_or(0.0, |s| s.gpu_ms.median)
+}
+
+fn tag(r: &BenchReport, config: &str) -> String {
+    match config {
+        "reference" => "R".into(),
+        "shared" => "S".into(),
+        _ => {
+            let i = r
+                .configs
+                .iter()
+                .filter(|c| c.name != "reference" && c.name != "shared")
+                .position(|c| c.name == config)
+                .unwrap_or(0);
+            format!("V{}", i + 1)
+        }
+    }
+}
+
+/// Issue 5's checks for every configuration other than `reference`, on the path
+/// scenario's fewest and most viewers.
+pub fn checks(r: &BenchReport) -> Vec<Check> {
+    let counts = viewer_counts(r, Scenario::Path);
+    let (Some(&lo), Some(&hi)) = (counts.first(), counts.last()) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    let reference_hi = point(r, Scenario::Path, "reference", hi);
+    if let (Some(a), Some(b)) = (point(r, Scenario::Path, "reference", lo), reference_hi) {
+        out.push(Check {
+            what: format!(
+                "reference fog rays at {hi} viewers / at {lo} (about linear: ≈ {:.0})",
+                hi as f64 / lo as f64
+            ),
+            value: ratio(b.rays.fog_total as f64, a.rays.fog_total as f64),
+            bound: None,
+        });
+    }
+    for c in challengers(r) {
+        if let (Some(reference), Some(p)) = (reference_hi, point(r, Scenario::Path, c, hi)) {
+            out.push(Check {
+                what: format!(
+                    "{c}: frame GPU ms at {hi} viewers / reference's (median of per-frame ratios)"
+                ),
+                value: paired_ratio(p, reference),
+                bound: Some(MAX_TIME_RATIO),
+            });
+            out.push(Check {
+                what: format!("{c}: the same, as the ratio of the two medians"),
+                value: ratio(p.frame_gpu_ms.median, reference.frame_gpu_ms.median),
+                bound: Some(MAX_TIME_RATIO),
+            });
+            out.push(Check {
+                what: format!(
+                    "{c}: fog stages only ({}) at {hi} viewers / reference's",
+                    super::FOG_STAGES.join(", ")
+                ),
+                value: ratio(p.fog_gpu_ms.median, reference.fog_gpu_ms.median),
+                bound: None,
+            });
+            let grid_and_frustum = stage_ms(p, "shared_grid") + stage_ms(p, "shadow_frustum");
+            out.push(Check {
+                what: format!(
+                    "{c}: frame at {hi} viewers / reference's if its grid and frustum stages took no time (the floor the other stages set)"
+                ),
+                value: ratio(p.frame_gpu_ms.median - grid_and_frustum, reference.frame_gpu_ms.median),
+                bound: None,
+            });
+        }
+        if let (Some(a), Some(b)) = (
+            point(r, Scenario::Path, c, lo),
+            point(r, Scenario::Path, c, hi),
+        ) {
+            out.push(Check {
+                what: format!("{c}: fog rays at {hi} viewers / at {lo}"),
+                value: ratio(b.rays.fog_total as f64, a.rays.fog_total as f64),
+                bound: Some(MAX_RAY_GROWTH),
+            });
+        }
+        let worst = r
+            .points
+            .iter()
+            .filter(|p| p.config == c)
+            .filter_map(|p| p.flip_vs_reference)
+            .map(|f| f.mean)
+            .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+        if let Some(worst) = worst {
+            out.push(Check {
+                what: format!("{c}: largest mean FLIP vs reference over all points"),
+                value: worst,
+                bound: Some(MAX_FLIP),
+            });
+        }
+    }
+    out
+}
+
+/// `p`'s frame GPU time relative to `reference`'s point `q`: the median of the per-frame
+/// ratios when they were measured, else the ratio of the medians.
+fn paired_ratio(p: &BenchPoint, q: &BenchPoint) -> f64 {
+    p.frame_gpu_vs_reference.map_or_else(
+        || ratio(p.frame_gpu_ms.median, q.frame_gpu_ms.median),
+        |s| s.median,
+    )
+}
+
+fn ratio(a: f64, b: f64) -> f64 {
+    if b > 0.0 {
+        a / b
+    } else {
+        f64::NAN
+    }
+}
+
+fn ms(s: &super::Spread) -> String {
+    format!("{:.1} ({:.1}–{:.1})", s.median, s.min, s.max)
+}
+
+fn csv(r: &BenchReport) -> Table {
+    let stages = stage_names(r);
+    let mut headers: Vec<String> = [
+        "scenario",
+        "overlap_pct",
+        "viewers",
+        "config",
+        "mode",
+        "frames",
+        "frame_gpu_ms_median",
+        "frame_gpu_ms_min",
+        "frame_gpu_ms_max",
+        "frame_host_ms_median",
+        "frame_gpu_vs_reference_median",
+        "fog_gpu_ms_median",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    headers.extend(stages.iter().map(|s| format!("{s}_gpu_ms_median")));
+    headers.extend(
+        [
+            "rays_shared_grid",
+            "rays_shadow_frustum",
+            "rays_froxel_lighting",
+            "rays_surface",
+            "rays_fog_total",
+            "rays_total",
+            "voxels_updated",
+            "grid_dims",
+            "memory_shared_bytes",
+            "memory_per_viewer_bytes",
+            "memory_total_bytes",
+            "flip_mean",
+            "flip_max",
+        ]
+        .iter()
+        .map(|s| s.to_string()),
+    );
+    let mut t = Table {
+        headers,
+        rows: Vec::new(),
+    };
+    for p in &r.points {
+        let (scenario, overlap) = match p.scenario {
+            Scenario::Path => ("path", String::new()),
+            Scenario::Overlap { overlap_pct } => ("overlap", overlap_pct.to_string()),
+        };
+        let mut row = vec![
+            scenario.to_string(),
+            overlap,
+            p.viewers.to_string(),
+            p.config.clone(),
+            mode_name(p.mode).into(),
+            p.frames.to_string(),
+            format!("{:.3}", p.frame_gpu_ms.median),
+            format!("{:.3}", p.frame_gpu_ms.min),
+            format!("{:.3}", p.frame_gpu_ms.max),
+            format!("{:.3}", p.frame_host_ms.median),
+            p.frame_gpu_vs_reference
+                .map_or(String::new(), |s| format!("{:.4}", s.median)),
+            format!("{:.3}", p.fog_gpu_ms.median),
+        ];
+        row.extend(stages.iter().map(|s| format!("{:.3}", stage_ms(p, s))));
+        let [gx, gy, gz] = p.grid_dims;
+        row.extend([
+            p.rays.shared_grid.to_string(),
+            p.rays.shadow_frustum.to_string(),
+            p.rays.froxel_lighting.to_string(),
+            p.rays.surface.to_string(),
+            p.rays.fog_total.to_string(),
+            p.rays.total.to_string(),
+            p.voxels_updated.to_string(),
+            format!("{gx}x{gy}x{gz}"),
+            p.memory.shared.to_string(),
+            p.memory.per_viewer.to_string(),
+            p.memory.total.to_string(),
+            p.flip_vs_reference
+                .map_or(String::new(), |f| format!("{:.5}", f.mean)),
+            p.flip_vs_reference
+                .map_or(String::new(), |f| format!("{:.5}", f.max)),
+        ]);
+        t.push(row);
+    }
+    t
+}
+
+fn mode_name(m: Mode) -> &'static str {
+    match m {
+        Mode::Reference => "reference",
+        Mode::Shared => "shared",
+    }
+}
+
+/// A value of a point relative to the `reference` point beside it.
+type PairRatio = dyn Fn(&BenchPoint, &BenchPoint) -> f64;
+
+/// A table with a row per viewer count and, per configuration, `cell(point)` and (for
+/// all but `reference`, when `ratio_of` is given) `ratio_of(point, reference point)`.
+fn per_config_table(
+    r: &BenchReport,
+    scenario: Scenario,
+    cell: &dyn Fn(&BenchPoint) -> String,
+    ratio_of: Option<&PairRatio>,
+) -> Table {
+    let with_ratio = |name: &str| name != "reference" && has_reference(r) && ratio_of.is_some();
+    let mut headers = vec!["cameras".to_string()];
+    for c in &r.configs {
+        headers.push(c.name.clone());
+        if with_ratio(&c.name) {
+            headers.push(format!("{} / reference", c.name));
+        }
+    }
+    let mut t = Table {
+        headers,
+        rows: Vec::new(),
+    };
+    for n in viewer_counts(r, scenario) {
+        let reference = point(r, scenario, "reference", n);
+        let mut row = vec![n.to_string()];
+        for c in &r.configs {
+            let p = point(r, scenario, &c.name, n);
+            row.push(p.map_or("–".into(), cell));
+            if let (true, Some(f)) = (with_ratio(&c.name), ratio_of) {
+                row.push(match (p, reference) {
+                    (Some(p), Some(q)) => format!("{:.2}", f(p, q)),
+                    _ => "–".into(),
+                });
+            }
+        }
+        t.push(row);
+    }
+    t
+}
+
+fn configs_table(r: &BenchReport) -> Table {
+    let mut t = Table::new(&[
+        "tag",
+        "configuration",
+        "mode",
+        "voxel m",
+        "grid",
+        "lookup",
+        "parity",
+        "froxel px × slices",
+        "shadow frustum",
+    ]);
+    for c in &r.configs {
+        let s = &c.settings;
+        let shared = s.mode == Mode::Shared;
+        let grid = r
+            .points
+            .iter()
+            .find(|p| p.config == c.name)
+            .map(|p| p.grid_dims)
+            .filter(|d| d[0] > 0)
+            .map_or("–".into(), |[x, y, z]| format!("{x}×{y}×{z}"));
+        let on_shared = |text: String| if shared { text } else { "–".into() };
+        t.push(vec![
+            tag(r, &c.name),
+            c.name.clone(),
+            mode_name(s.mode).into(),
+            on_shared(format!("{}", s.voxel_size_m)),
+            grid,
+            on_shared(if s.trilinear { "trilinear" } else { "nearest" }.into()),
+            on_shared(if s.parity { "on" } else { "off" }.into()),
+            format!("{} × {}", s.froxel_px, s.slices),
+            on_shared(if s.frustum_slice_fraction > 0.0 {
+                format!(
+                    "{} px, {:.0} % of slices",
+                    s.frustum_px,
+                    s.frustum_slice_fraction * 100.0
+                )
+            } else {
+                "off".into()
+            }),
+        ]);
+    }
+    t
+}
+
+fn stage_table(r: &BenchReport, scenario: Scenario) -> Table {
+    let stages = stage_names(r);
+    let mut headers = vec!["cameras".to_string(), "configuration".to_string()];
+    headers.extend(stages.iter().cloned());
+    headers.push("frame".into());
+    let mut t = Table {
+        headers,
+        rows: Vec::new(),
+    };
+    for n in viewer_counts(r, scenario) {
+        for c in &r.configs {
+            if let Some(p) = point(r, scenario, &c.name, n) {
+                let mut row = vec![n.to_string(), c.name.clone()];
+                row.extend(stages.iter().map(|s| {
+                    if p.stages.iter().any(|x| x.stage == *s) {
+                        format!("{:.1}", stage_ms(p, s))
+                    } else {
+                        "–".into()
+                    }
+                }));
+                row.push(format!("{:.1}", p.frame_gpu_ms.median));
+                t.push(row);
+            }
+        }
+    }
+    t
+}
+
+fn overlap_tables(r: &BenchReport) -> String {
+    let overlaps = overlaps(r);
+    if overlaps.is_empty() {
+        return String::new();
+    }
+    let mut md = String::from(
+        "\n## Fixed overlap (paper Figure 12)\n\nOne camera on the path, duplicated and yawed \
+         in place about the vertical axis through its eye; neighbours are (1 − overlap) × \
+         the horizontal field of view apart, so each pair of neighbours shares `overlap` \
+         of its horizontal view angle (100 %: all cameras identical). Cells: frame GPU ms \
+         of the configuration / reference's, and fog rays likewise.\n",
+    );
+    let counts: Vec<usize> = {
+        let mut v: Vec<usize> = r
+            .points
+            .iter()
+            .filter(|p| matches!(p.scenario, Scenario::Overlap { .. }))
+            .map(|p| p.viewers)
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    for c in challengers(r) {
+        for (what, value) in [
+            (
+                "frame GPU ms",
+                (&|p: &BenchPoint| p.frame_gpu_ms.median) as &dyn Fn(&BenchPoint) -> f64,
+            ),
+            ("fog rays", &|p: &BenchPoint| p.rays.fog_total as f64),
+        ] {
+            let mut headers = vec!["cameras".to_string()];
+            headers.extend(overlaps.iter().map(|o| format!("{o} %")));
+            let mut t = Table {
+                headers,
+                rows: Vec::new(),
+            };
+            for &n in &counts {
+                let mut row = vec![n.to_string()];
+                for &overlap_pct in &overlaps {
+                    let s = Scenario::Overlap { overlap_pct };
+                    row.push(match (point(r, s, c, n), point(r, s, "reference", n)) {
+                        (Some(p), Some(q)) => {
+                            let (a, b) = (value(p), value(q));
+                            if what == "fog rays" {
+                                format!("{a:.0} / {b:.0} ({:.2})", ratio(a, b))
+                            } else {
+                                format!("{a:.1} / {b:.1} ({:.2})", paired_ratio(p, q))
+                            }
+                        }
+                        (Some(p), None) => format!("{:.1}", value(p)),
+                        _ => "–".into(),
+                    });
+                }
+                t.push(row);
+            }
+            md += &format!(
+                "\n### {c}: {what} / reference's (ratio)\n\n{}",
+                t.to_markdown()
+            );
+        }
+    }
+    md
+}
+
+fn markdown(r: &BenchReport) -> String {
+    let path = Scenario::Path;
+    let mut md = format!(
+        "# bench: {scene}\n\n`{cmd}`\n\n{w}×{h} per viewer; at each point {warm} warm-up and \
+         {frames} measured frame(s), scene time from {t0} s in steps of {dt:.4} s; the \
+         configurations take turns frame by frame on the same cameras. Times are GPU \
+         timestamp queries on `{adapter}` with {threads} CPU thread(s): the median over the \
+         measured frames, the range in brackets; a frame's time is the sum of its stages. \
+         Rays and voxels are means per frame. Ratios of times to `reference` are medians of \
+         per-frame ratios (the two ran back to back on the same cameras). FLIP against \
+         `reference`: {flip}. The run took {elapsed:.0} s; {load}.\n\n{configs}",
+        scene = r.scene,
+        cmd = r.command,
+        w = r.width,
+        h = r.height,
+        warm = r.warmup,
+        frames = r.frames,
+        t0 = r.time_s,
+        dt = r.frame_dt_s,
+        adapter = r.adapter,
+        threads = r.cpu_threads,
+        flip = r.flip_frames,
+        elapsed = r.elapsed_s,
+        load = r
+            .load_average
+            .map_or("load average unknown".into(), |[a, b]| format!(
+            "the machine's 1-minute load average was {a:.1} at the start and {b:.1} at the end \
+             (above {} other processes competed for the CPU lavapipe renders on)",
+            r.cpu_threads
+        )),
+        configs = configs_table(r).to_markdown(),
+    );
+    if !viewer_counts(r, path).is_empty() {
+        let time = per_config_table(
+            r,
+            path,
+            &|p| ms(&p.frame_gpu_ms),
+            Some(&|p, q| paired_ratio(p, q)),
+        );
+        let fog = per_config_table(
+            r,
+            path,
+            &|p| ms(&p.fog_gpu_ms),
+            Some(&|p, q| ratio(p.fog_gpu_ms.median, q.fog_gpu_ms.median)),
+        );
+        let rays = per_config_table(
+            r,
+            path,
+            &|p| {
+                let first = series_of(r, path, &p.config)
+                    .first()
+                    .map_or(0, |f| f.rays.fog_total);
+                format!(
+                    "{} (×{:.2})",
+                    p.rays.fog_total,
+                    ratio(p.rays.fog_total as f64, first as f64)
+                )
+            },
+            Some(&|p, q| ratio(p.rays.fog_total as f64, q.rays.fog_total as f64)),
+        );
+        let memory = per_config_table(
+            r,
+            path,
+            &|p| {
+                format!(
+                    "{:.1} ({:.1} + {}×{:.2})",
+                    p.memory.total as f64 / MIB,
+                    p.memory.shared as f64 / MIB,
+                    p.viewers,
+                    p.memory.per_viewer as f64 / MIB
+                )
+            },
+            Some(&|p, q| ratio(p.memory.total as f64, q.memory.total as f64)),
+        );
+        let voxels = per_config_table(r, path, &|p| p.voxels_updated.to_string(), None);
+        let mut flip = Table::new(&["cameras"]);
+        let challengers = challengers(r);
+        flip.headers.extend(
+            challengers
+                .iter()
+                .map(|c| format!("{c}: mean (worst image)")),
+        );
+        for n in viewer_counts(r, path) {
+            let mut row = vec![n.to_string()];
+            row.extend(challengers.iter().map(|c| {
+                point(r, path, c, n)
+                    .and_then(|p| p.flip_vs_reference)
+                    .map_or("–".into(), |f| format!("{:.4} ({:.4})", f.mean, f.max))
+            }));
+            flip.push(row);
+        }
+        md += &format!(
+            "\n## Frame time, GPU ms (viewers spread along the camera path; paper Tables 1–3)\n\n{}\
+             \n## Fog stages only ({fog_stages}), GPU ms\n\n{}\
+             \n## Shadow rays per frame, fog stages (× its own fewest-viewer count; paper Figure 11)\n\n{}\
+             \n## Memory, MiB: total (shared + viewers × per viewer; paper Figure 14)\n\n{}\
+             \n## Shared-grid voxels updated per frame\n\n{}\
+             \n## Where the time goes: GPU ms per stage, median (paper Figure 13)\n\n{}\
+             \n## Mean FLIP against reference on the same frames\n\n{}",
+            time.to_markdown(),
+            fog.to_markdown(),
+            rays.to_markdown(),
+            memory.to_markdown(),
+            voxels.to_markdown(),
+            stage_table(r, path).to_markdown(),
+            flip.to_markdown(),
+            fog_stages = super::FOG_STAGES.join(", "),
+        );
+        let checks = checks(r);
+        if !checks.is_empty() {
+            let mut t = Table::new(&["check", "measured", "bound", "result"]);
+            for c in &checks {
+                t.push(vec![
+                    c.what.clone(),
+                    format!("{:.3}", c.value),
+                    c.bound.map_or("–".into(), |b| format!("≤ {b}")),
+                    match c.bound {
+                        None => "reported".into(),
+                        Some(_) if c.passed() => "pass".into(),
+                        Some(_) => "**fail**".into(),
+                    },
+                ]);
+            }
+            md += &format!("\n## Issue 5 acceptance checks\n\n{}", t.to_markdown());
+        }
+    }
+    md + &overlap_tables(r)
+}
+
+fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
+    let path = Scenario::Path;
+    let counts = viewer_counts(r, path);
+    if !counts.is_empty() {
+        let by_config = |y: &dyn Fn(&BenchPoint) -> f64| -> Vec<Series> {
+            r.configs
+                .iter()
+                .map(|c| Series {
+                    name: c.name.clone(),
+                    points: series_of(r, path, &c.name)
+                        .into_iter()
+                        .map(|p| (p.viewers as f64, y(p)))
+                        .collect(),
+                })
+                .collect()
+        };
+        let line = |file: &str, title: &str, y_label: &str, y: &dyn Fn(&BenchPoint) -> f64| {
+            plot(
+                &out.join(file),
+                &format!("{}: {title}", r.scene),
+                "viewers",
+                y_label,
+                &by_config(y),
+                true,
+                false,
+                false,
+            )
+        };
+        line(
+            "frame_time.png",
+            &format!("frame GPU time, {}×{} per viewer", r.width, r.height),
+            "GPU ms per frame (median)",
+            &|p| p.frame_gpu_ms.median,
+        )?;
+        line(
+            "rays.png",
+            "fog shadow rays per frame",
+            "shadow rays (fog stages)",
+            &|p| p.rays.fog_total as f64,
+        )?;
+        line("memory.png", "GPU memory", "MiB", &|p| {
+            p.memory.total as f64 / MIB
+        })?;
+        let stages = stage_names(r);
+        let groups: Vec<BarGroup> = counts
+            .iter()
+            .map(|&n| BarGroup {
+                label: n.to_string(),
+                bars: r
+                    .configs
+                    .iter()
+                    .filter_map(|c| point(r, path, &c.name, n))
+                    .map(|p| Bar {
+                        tag: tag(r, &p.config),
+                        segments: stages.iter().map(|s| stage_ms(p, s)).collect(),
+                    })
+                    .collect(),
+            })
+            .collect();
+        let legend: Vec<String> = r
+            .configs
+            .iter()
+            .map(|c| format!("{} = {}", tag(r, &c.name), c.name))
+            .collect();
+        stacked_bars(
+            &out.join("stages.png"),
+            &format!("{}: GPU ms per stage ({})", r.scene, legend.join(", ")),
+            "viewers",
+            "GPU ms per frame (median)",
+            &stages,
+            &groups,
+        )?;
+    }
+    let overlaps = overlaps(r);
+    if !overlaps.is_empty() && has_reference(r) {
+        let ratio_series = |of: &PairRatio| -> Vec<Series> {
+            let mut series = Vec::new();
+            let mut xs = Vec::new();
+            for c in challengers(r) {
+                for &overlap_pct in &overlaps {
+                    let s = Scenario::Overlap { overlap_pct };
+                    let points: Vec<(f64, f64)> = series_of(r, s, c)
+                        .into_iter()
+                        .filter_map(|p| {
+                            point(r, s, "reference", p.viewers)
+                                .map(|q| (p.viewers as f64, of(p, q)))
+                        })
+                        .collect();
+                    xs.extend(points.iter().map(|p| p.0));
+                    series.push(Series {
+                        name: format!("{c}, {overlap_pct} % overlap"),
+                        points,
+                    });
+                }
+            }
+            let (lo, hi) = xs
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                    (a.min(x), b.max(x))
+                });
+            if lo.is_finite() {
+                series.push(Series {
+                    name: "break-even (= reference)".into(),
+                    points: vec![(lo, 1.0), (hi, 1.0)],
+                });
+            }
+            series
+        };
+        plot(
+            &out.join("overlap_time.png"),
+            &format!("{}: fixed overlap, frame GPU time / reference's", r.scene),
+            "viewers",
+            "frame GPU ms / reference (median per-frame ratio)",
+            &ratio_series(&paired_ratio),
+            true,
+            false,
+            false,
+        )?;
+        plot(
+            &out.join("overlap_rays.png"),
+            &format!("{}: fixed overlap, fog rays / reference's", r.scene),
+            "viewers",
+            "fog shadow rays / reference",
+            &ratio_series(&|p, q| ratio(p.rays.fog_total as f64, q.rays.fog_total as f64)),
+            true,
+            false,
+            false,
+        )?;
+    }
+    Ok(())
+}
+
+/// Writes `bench.json`, `bench.csv`, `bench.md` and the plots into `out`.
+pub fn write(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
+    crate::output::write_json(&out.join("bench.json"), r)?;
+    let write = |name: &str, text: String| {
+        std::fs::write(out.join(name), text)
+            .map_err(|e| anyhow::anyhow!("writing {}: {e}", out.join(name).display()))
+    };
+    write("bench.csv", csv(r).to_csv())?;
+    write("bench.md", markdown(r))?;
+    plots(r, out)
+}

@@ -1,0 +1,216 @@
+//! Named renderer configurations of a benchmark: the modes (`reference`, `shared`) and
+//! `--variant 'name:key=value,…'` strings that change settings of `shared`.
+
+use crate::render::{Mode, Settings};
+use serde::{Deserialize, Serialize};
+
+/// One configuration a benchmark renders at every point.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BenchVariant {
+    /// Unique name (`reference`, `shared`, or the variant's own).
+    pub name: String,
+    /// Renderer settings.
+    pub settings: Settings,
+}
+
+/// Keys of a `--variant` string, with what each takes (shown in errors).
+const KEYS: [(&str, &str); 10] = [
+    ("mode", "reference|shared"),
+    ("voxel", "grid voxel edge in metres, e.g. 0.5"),
+    ("lookup", "nearest|trilinear"),
+    ("parity", "on|off"),
+    (
+        "frustum",
+        "fraction of the slices in the shadow frustum, 0..=1",
+    ),
+    ("frustum_px", "pixels per shadow-frustum froxel"),
+    ("froxel_px", "pixels per lighting froxel"),
+    ("slices", "depth slices"),
+    ("temporal", "on|off"),
+    ("depth_curve", "curvature of the depth-slice distribution"),
+];
+
+/// The configurations for `modes`, in that order: each starts from the paper's
+/// defaults with the scene's voxel size.
+pub fn mode_variants(modes: &[Mode], scene_voxel_size_m: f32) -> Vec<BenchVariant> {
+    modes
+        .iter()
+        .map(|&mode| BenchVariant {
+            name: mode_name(mode).to_string(),
+            settings: base_settings(mode, scene_voxel_size_m),
+        })
+        .collect()
+}
+
+fn mode_name(mode: Mode) -> &'static str {
+    match mode {
+        Mode::Reference => "reference",
+        Mode::Shared => "shared",
+    }
+}
+
+fn base_settings(mode: Mode, scene_voxel_size_m: f32) -> Settings {
+    Settings {
+        mode,
+        voxel_size_m: scene_voxel_size_m,
+        ..Settings::default()
+    }
+}
+
+/// Parses `name:key=value,key=value` (keys: mode, voxel, lookup, parity, frustum,
+/// frustum_px, froxel_px, slices, temporal, depth_curve) over the `shared` defaults with
+/// the scene's voxel size. Errors quote the whole `--variant` value and name the key.
+pub fn parse_variant(spec: &str, scene_voxel_size_m: f32) -> anyhow::Result<BenchVariant> {
+    let fail = |why: String| anyhow::anyhow!("--variant '{spec}': {why}");
+    let (name, body) = spec.split_once(':').unwrap_or((spec, ""));
+    let name = name.trim();
+    if name.is_empty() {
+        return Err(fail(
+            "needs a name before ':' (e.g. 'coarse:voxel=0.5')".into(),
+        ));
+    }
+    if name == "reference" || name == "shared" {
+        return Err(fail(format!(
+            "the name '{name}' is taken by a mode; pick another"
+        )));
+    }
+    let mut s = base_settings(Mode::Shared, scene_voxel_size_m);
+    for pair in body.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (key, value) = pair
+            .split_once('=')
+            .map(|(k, v)| (k.trim(), v.trim()))
+            .ok_or_else(|| fail(format!("'{pair}' is not key=value")))?;
+        let expects = KEYS.iter().find(|(k, _)| *k == key).map(|(_, e)| *e);
+        let Some(expects) = expects else {
+            let keys: Vec<&str> = KEYS.iter().map(|(k, _)| *k).collect();
+            return Err(fail(format!(
+                "unknown key '{key}' (keys: {})",
+                keys.join(", ")
+            )));
+        };
+        let bad = || fail(format!("{key}={value}: expected {expects}"));
+        let number = || value.parse::<f32>().ok().filter(|v| v.is_finite());
+        let count = || value.parse::<u32>().ok();
+        let switch = || match value {
+            "on" | "true" | "yes" => Some(true),
+            "off" | "false" | "no" => Some(false),
+            _ => None,
+        };
+        match key {
+            "mode" => {
+                s.mode = match value {
+                    "reference" => Mode::Reference,
+                    "shared" => Mode::Shared,
+                    _ => return Err(bad()),
+                }
+            }
+            "voxel" => s.voxel_size_m = number().ok_or_else(bad)?,
+            "lookup" => {
+                s.trilinear = match value {
+                    "nearest" => false,
+                    "trilinear" => true,
+                    _ => return Err(bad()),
+                }
+            }
+            "parity" => s.parity = switch().ok_or_else(bad)?,
+            "frustum" => s.frustum_slice_fraction = number().ok_or_else(bad)?,
+            "frustum_px" => s.frustum_px = count().ok_or_else(bad)?,
+            "froxel_px" => s.froxel_px = count().ok_or_else(bad)?,
+            "slices" => s.slices = count().ok_or_else(bad)?,
+            "temporal" => s.temporal = switch().ok_or_else(bad)?,
+            "depth_curve" => s.depth_curve = number().ok_or_else(bad)?,
+            _ => unreachable!("every key of KEYS is matched"),
+        }
+    }
+    s.validate().map_err(|e| fail(format!("{e:#}")))?;
+    Ok(BenchVariant {
+        name: name.to_string(),
+        settings: s,
+    })
+}
+
+/// The modes followed by the variants; names must be unique and something must be left.
+pub fn configurations(
+    modes: &[Mode],
+    variant_specs: &[String],
+    scene_voxel_size_m: f32,
+) -> anyhow::Result<Vec<BenchVariant>> {
+    let mut all = mode_variants(modes, scene_voxel_size_m);
+    for spec in variant_specs {
+        let v = parse_variant(spec, scene_voxel_size_m)?;
+        anyhow::ensure!(
+            all.iter().all(|o| o.name != v.name),
+            "--variant '{spec}': the name '{}' is used twice",
+            v.name
+        );
+        all.push(v);
+    }
+    let mut seen = Vec::new();
+    for m in modes {
+        anyhow::ensure!(
+            !seen.contains(m),
+            "--modes: '{}' is given twice",
+            mode_name(*m)
+        );
+        seen.push(*m);
+    }
+    anyhow::ensure!(
+        !all.is_empty(),
+        "nothing to run: give --modes or at least one --variant"
+    );
+    Ok(all)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn variant_keys_set_settings() {
+        let v = parse_variant(
+            "fast:voxel=0.5, lookup=nearest,parity=on,frustum=0.25",
+            0.25,
+        )
+        .unwrap();
+        assert_eq!(v.name, "fast");
+        assert_eq!(v.settings.mode, Mode::Shared);
+        assert_eq!(v.settings.voxel_size_m, 0.5);
+        assert!(!v.settings.trilinear && v.settings.parity);
+        assert_eq!(v.settings.frustum_slice_fraction, 0.25);
+        let plain = parse_variant("same", 0.3).unwrap();
+        assert_eq!(plain.settings, base_settings(Mode::Shared, 0.3));
+    }
+
+    #[test]
+    fn bad_variants_name_the_key_and_value() {
+        for (spec, needle) in [
+            ("x:voxel=abc", "voxel=abc"),
+            ("x:voxel=0.001", "voxel size 0.001"),
+            ("x:lookup=cubic", "lookup=cubic: expected nearest|trilinear"),
+            ("x:speed=3", "unknown key 'speed'"),
+            ("x:parity", "'parity' is not key=value"),
+            (":voxel=1", "needs a name"),
+            ("shared:voxel=1", "taken by a mode"),
+            ("x:slices=-3", "slices=-3"),
+            ("x:voxel=inf", "voxel=inf"),
+        ] {
+            let e = parse_variant(spec, 0.25).unwrap_err().to_string();
+            assert!(e.contains(needle), "{spec}: {e}");
+            assert!(e.contains(&format!("'{spec}'")), "{spec}: {e}");
+        }
+    }
+
+    #[test]
+    fn names_must_be_unique() {
+        let e = configurations(
+            &[Mode::Reference],
+            &["a:voxel=1".into(), "a:voxel=2".into()],
+            0.25,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("used twice"), "{e}");
+        let e = configurations(&[Mode::Shared, Mode::Shared], &[], 0.25).unwrap_err();
+        assert!(e.to_string().contains("--modes"), "{e}");
+        assert!(configurations(&[], &[], 0.25).is_err());
+    }
+}

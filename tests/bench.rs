@@ -1,0 +1,197 @@
+//! `fogcast bench` at a small size on `colonnade`: 1 and 4 viewers, `reference` and
+//! `shared`, through the library. Checks that `bench.json` has every field with finite
+//! values, and the ray counts issue 5 is about — deterministic numbers, so no timing is
+//! asserted: `reference` rays grow about linearly, `shared` rays sub-linearly, and
+//! `shared` traces fewer than `reference` at 4 viewers.
+
+use fogcast::bench::{mode_variants, run, BenchConfig};
+use fogcast::render::Mode;
+use serde_json::Value;
+use std::path::PathBuf;
+
+const WIDTH: u32 = 160;
+const HEIGHT: u32 = 90;
+/// The grid's rays do not depend on the image size while reference's do, so at a test
+/// size the scene's 0.25 m grid (155k voxels on colonnade) out-traces 4 small viewers;
+/// a 0.5 m grid (8× fewer voxels) keeps the comparison the one that matters at full size.
+const VOXEL_SIZE_M: f32 = 0.5;
+/// Viewers on the loop see different amounts of fog: 4 viewers trace 4× one viewer's
+/// reference rays within ±25 %.
+const LINEAR_TOLERANCE: f64 = 0.25;
+/// Shared rays at 4 viewers stay under this multiple of its rays at 1 viewer (linear: 4).
+const MAX_SHARED_GROWTH: f64 = 2.5;
+
+fn out_dir() -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fogcast-bench-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn number(v: &Value, path: &str) -> f64 {
+    let mut cur = v;
+    for key in path.split('.') {
+        cur = cur
+            .get(key)
+            .unwrap_or_else(|| panic!("bench.json: no `{path}` (at `{key}`) in {v}"));
+    }
+    let x = cur
+        .as_f64()
+        .unwrap_or_else(|| panic!("bench.json: `{path}` = {cur} is not a number"));
+    assert!(x.is_finite(), "bench.json: `{path}` = {x} is not finite");
+    x
+}
+
+#[test]
+fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
+    let out = out_dir();
+    let cfg = BenchConfig {
+        scene: "colonnade".into(),
+        viewers: vec![1, 4],
+        configs: mode_variants(&[Mode::Reference, Mode::Shared], VOXEL_SIZE_M),
+        width: WIDTH,
+        height: HEIGHT,
+        warmup: 1,
+        frames: 2,
+        time_s: 0.0,
+        overlaps_pct: vec![50.0],
+        overlap_viewers: vec![2],
+        out: out.clone(),
+        command: "tests/bench.rs".into(),
+    };
+    let progressed = std::sync::atomic::AtomicUsize::new(0);
+    run(&cfg, &|p| {
+        assert!(p.done <= p.total);
+        progressed.store(p.done, std::sync::atomic::Ordering::Relaxed);
+    })
+    .expect("bench runs");
+    assert_eq!(
+        progressed.into_inner(),
+        2 * 3 * (1 + 4 + 2),
+        "progress reaches every viewer-frame"
+    );
+    for file in [
+        "bench.csv",
+        "bench.md",
+        "frame_time.png",
+        "rays.png",
+        "memory.png",
+        "stages.png",
+        "overlap_time.png",
+        "overlap_rays.png",
+    ] {
+        let len = std::fs::metadata(out.join(file))
+            .unwrap_or_else(|e| panic!("{file}: {e}"))
+            .len();
+        assert!(len > 100, "{file} is only {len} bytes");
+    }
+
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    assert!(json["adapter"].as_str().is_some_and(|a| !a.is_empty()));
+    assert_eq!(json["scene"], "colonnade");
+    let points = json["points"].as_array().expect("points");
+    assert_eq!(
+        points.len(),
+        2 * 3,
+        "(1, 4 viewers + 2 overlapping) × 2 modes"
+    );
+    let find = |scenario: &str, mode: &str, viewers: u64| -> &Value {
+        points
+            .iter()
+            .find(|p| {
+                p["scenario"]["kind"] == scenario
+                    && p["mode"] == mode
+                    && p["viewers"].as_u64() == Some(viewers)
+            })
+            .unwrap_or_else(|| panic!("no {scenario} point for {mode} at {viewers} viewers"))
+    };
+    for p in points {
+        let shared = p["mode"] == "shared";
+        for key in [
+            "viewers",
+            "frames",
+            "frame_gpu_ms.median",
+            "frame_gpu_ms.min",
+            "frame_gpu_ms.max",
+            "frame_host_ms.median",
+            "fog_gpu_ms.median",
+            "rays.shared_grid",
+            "rays.shadow_frustum",
+            "rays.froxel_lighting",
+            "rays.surface",
+            "rays.fog_total",
+            "rays.total",
+            "voxels_updated",
+            "memory.shared",
+            "memory.per_viewer",
+            "memory.total",
+        ] {
+            number(p, key);
+        }
+        assert_eq!(number(p, "frames"), 2.0);
+        let (lo, med, hi) = (
+            number(p, "frame_gpu_ms.min"),
+            number(p, "frame_gpu_ms.median"),
+            number(p, "frame_gpu_ms.max"),
+        );
+        assert!(0.0 < lo && lo <= med && med <= hi, "{p}");
+        let stages = p["stages"].as_array().expect("stages");
+        let names: Vec<&str> = stages.iter().filter_map(|s| s["stage"].as_str()).collect();
+        for s in stages {
+            number(s, "gpu_ms.median");
+        }
+        let stage_sum: f64 = stages.iter().map(|s| number(s, "gpu_ms.median")).sum();
+        assert!(stage_sum > 0.0, "{p}");
+        let viewers = number(p, "viewers");
+        assert_eq!(
+            number(p, "memory.total"),
+            number(p, "memory.shared") + viewers * number(p, "memory.per_viewer")
+        );
+        if shared {
+            assert!(names.contains(&"shared_grid") && names.contains(&"shadow_frustum"));
+            assert!(number(p, "voxels_updated") > 0.0);
+            assert!(p["grid_dims"][0].as_u64() > Some(0), "{p}");
+            let flip = number(p, "flip_vs_reference.mean");
+            assert!(
+                flip > 0.0 && flip <= 0.05,
+                "shared vs reference mean FLIP {flip}"
+            );
+            assert!(number(p, "flip_vs_reference.max") >= flip);
+            assert!(number(p, "frame_gpu_vs_reference.median") > 0.0);
+            assert_eq!(
+                number(p, "flip_vs_reference.images"),
+                viewers * 2.0,
+                "every viewer of every measured frame"
+            );
+        } else {
+            assert!(!names.contains(&"shared_grid"));
+            assert!(p["flip_vs_reference"].is_null());
+            assert!(p["frame_gpu_vs_reference"].is_null());
+            assert_eq!(number(p, "rays.shared_grid"), 0.0);
+        }
+    }
+
+    let rays = |mode, n| number(find("path", mode, n), "rays.fog_total");
+    let (r1, r4, s1, s4) = (
+        rays("reference", 1),
+        rays("reference", 4),
+        rays("shared", 1),
+        rays("shared", 4),
+    );
+    println!("fog rays: reference {r1} → {r4}, shared {s1} → {s4}");
+    let linear = r4 / r1;
+    assert!(
+        (linear / 4.0 - 1.0).abs() <= LINEAR_TOLERANCE,
+        "reference rays at 4 viewers are {linear:.2}× those at 1: not about 4×"
+    );
+    assert!(
+        s4 / s1 <= MAX_SHARED_GROWTH,
+        "shared rays grew {:.2}× from 1 to 4 viewers (bound {MAX_SHARED_GROWTH})",
+        s4 / s1
+    );
+    assert!(
+        s4 < r4,
+        "shared traces {s4} rays at 4 viewers, reference {r4}"
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}
