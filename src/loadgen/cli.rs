@@ -103,7 +103,7 @@ pub fn loadgen(args: &LoadgenArgs) -> anyhow::Result<()> {
     for p in &report.points {
         let s = &p.summary;
         println!(
-            "{:>3} views: {:5.1} fps per viewer (min {:.1}), latency p50/p95/p99 {}, {:.0} KiB/s per viewer, every viewer every second: {}",
+            "{:>3} views: {:5.1} fps per viewer (min {:.1}), latency p50/p95/p99 {}, {:.0} KiB/s per viewer, frames every second: {}, served throughout: {}",
             p.viewers,
             s.fps_mean,
             s.fps_min,
@@ -112,7 +112,8 @@ pub fn loadgen(args: &LoadgenArgs) -> anyhow::Result<()> {
                 |l| format!("{:.0}/{:.0}/{:.0} ms", l.p50_ms, l.p95_ms, l.p99_ms)
             ),
             s.bytes_per_s_per_viewer / 1024.0,
-            if s.every_viewer_every_second { "yes" } else { "NO" }
+            if s.every_viewer_every_second { "yes" } else { "no" },
+            if s.every_viewer_served_throughout { "yes" } else { "NO" }
         );
     }
     println!(

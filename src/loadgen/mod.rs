@@ -122,8 +122,8 @@ impl LoadgenConfig {
             anyhow::ensure!((1..=256).contains(&n), "--viewers {n}: must be 1..=256");
             anyhow::ensure!(
                 n % per == 0,
-                "--viewers {n}: a {:?} session has {per} views, so each count must be a multiple of {per}",
-                self.layout
+                "--viewers {n}: a {} session has {per} views, so each count must be a multiple of {per}",
+                format!("{:?}", self.layout).to_lowercase()
             );
         }
         for (flag, v, lo, hi) in [
@@ -231,6 +231,10 @@ pub struct ViewerStats {
     pub server_errors: Vec<String>,
     /// Why the session ended before the window did (should be `None`).
     pub ended_early: Option<String>,
+    /// The viewer stayed connected, received frames, and either got frames in every
+    /// second of the window or got every frame the server rendered in it (below 1
+    /// render-loop frame per second some seconds have no frame for anyone).
+    pub served_throughout: bool,
 }
 
 /// One sweep point over all its viewers.
@@ -258,6 +262,8 @@ pub struct PointSummary {
     pub max_gap_ms: f64,
     /// Every viewer received frames in every second of the window and stayed connected.
     pub every_viewer_every_second: bool,
+    /// Every viewer was [served throughout](ViewerStats::served_throughout).
+    pub every_viewer_served_throughout: bool,
     /// Viewers whose session ended before the window did.
     pub viewers_ended_early: usize,
     /// Frames that did not match their session, all viewers.
@@ -309,6 +315,16 @@ pub struct ServerStats {
     pub resident_memory_mib: f64,
 }
 
+/// 1-minute load average of this machine (`/proc/loadavg`), when known.
+fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
 /// One sweep point.
 #[derive(Debug, Clone, Serialize)]
 pub struct PointResult {
@@ -320,6 +336,9 @@ pub struct PointResult {
     pub first_frames_s: f64,
     /// Length of the measured window, seconds.
     pub window_s: f64,
+    /// This machine's 1-minute load average at the end of the window: other work
+    /// competing with the server for the CPU (the renderer runs on it, lavapipe).
+    pub load_average_1m: Option<f64>,
     /// Over all viewers.
     pub summary: PointSummary,
     /// The server's numbers.
@@ -523,6 +542,7 @@ async fn run_point(
     }
     let t1 = Instant::now();
     let after = scrape::metrics(&target.authority).await?;
+    let load_average_1m = load_average();
 
     let _ = stop_tx.send(true);
     let mut per_viewer = Vec::with_capacity(sessions);
@@ -558,7 +578,11 @@ async fn run_point(
         summary.fps_min,
         server.fps,
         summary.bytes_per_s_per_viewer / 1024.0,
-        if summary.every_viewer_every_second { "" } else { "; SOME VIEWER MISSED A SECOND" }
+        match (summary.every_viewer_every_second, summary.every_viewer_served_throughout) {
+            (true, _) => "",
+            (false, true) => "; some second had no frame (the server rendered under 1 fps then), but every viewer got every frame",
+            (false, false) => "; SOME VIEWER WAS NOT SERVED THROUGHOUT",
+        }
     ));
 
     // Let the server release the sessions before the next point asks for views.
@@ -584,6 +608,7 @@ async fn run_point(
         sessions,
         first_frames_s,
         window_s: t1.duration_since(t0).as_secs_f64(),
+        load_average_1m,
         summary,
         server,
         per_viewer,

@@ -60,6 +60,7 @@ fn viewer_table(points: &[PointResult]) -> Table {
         "missed_frames",
         "longest_gap_ms",
         "seconds_without_frames",
+        "served_throughout",
         "frames_per_second",
     ]);
     for p in points {
@@ -79,6 +80,7 @@ fn viewer_table(points: &[PointResult]) -> Table {
                 v.missed_frames.to_string(),
                 format!("{:.0}", v.max_gap_ms),
                 v.seconds_without_frames.to_string(),
+                v.served_throughout.to_string(),
                 v.timeline
                     .iter()
                     .map(u32::to_string)
@@ -106,7 +108,10 @@ fn markdown(r: &LoadgenReport) -> String {
     md += "## Per point\n\nfps and bandwidth per viewer (one session); latency is pose-to-frame over every viewer's samples; \
            *dropped* are frames the server replaced or skipped for a session (its header counter), *missed* the \
            render-loop frames a session did not receive; *every second* says every viewer received frames in every \
-           second of the window.\n\n";
+           second of the window; *served throughout* says every viewer stayed connected and either had frames in every \
+           second or received every frame the server rendered (below 1 server fps some seconds have no frame for \
+           anyone); *load avg* is this machine's 1-minute load average at the end of the window (other work competes \
+           with the CPU renderer).\n\n";
     let mut t = Table::new(&[
         "views",
         "fps/viewer mean",
@@ -123,6 +128,8 @@ fn markdown(r: &LoadgenReport) -> String {
         "missed",
         "longest gap ms",
         "every second",
+        "served throughout",
+        "load avg",
     ]);
     for p in &r.points {
         let s = &p.summary;
@@ -144,8 +151,14 @@ fn markdown(r: &LoadgenReport) -> String {
             if s.every_viewer_every_second {
                 "yes".into()
             } else {
+                "no".into()
+            },
+            if s.every_viewer_served_throughout {
+                "yes".into()
+            } else {
                 format!("**no** ({} ended early)", s.viewers_ended_early)
             },
+            p.load_average_1m.map_or_else(|| "–".into(), f1),
         ]);
     }
     md += &t.to_markdown();
@@ -205,8 +218,23 @@ fn markdown(r: &LoadgenReport) -> String {
             p.viewers, p.window_s
         );
         let full = viewer_table(std::slice::from_ref(p));
-        // The markdown drops the columns the heading already gives.
-        let keep = [1, 3, 4, 5, 6, 7, 9, 10, 11, 12, 14];
+        // The markdown keeps the columns the heading does not already give.
+        let keep: Vec<usize> = [
+            "viewer",
+            "fps",
+            "frames",
+            "latency_p50_ms",
+            "latency_p95_ms",
+            "latency_p99_ms",
+            "kib_per_s",
+            "dropped_server",
+            "missed_frames",
+            "longest_gap_ms",
+            "frames_per_second",
+        ]
+        .iter()
+        .filter_map(|name| full.headers.iter().position(|h| h == name))
+        .collect();
         let t = Table {
             headers: keep.iter().map(|&i| full.headers[i].clone()).collect(),
             rows: full

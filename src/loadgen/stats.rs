@@ -113,6 +113,9 @@ pub(crate) fn viewer(
                 / 1e3
         })
     };
+    let seconds_without_frames = timeline.iter().filter(|n| **n == 0).count();
+    let served_throughout =
+        ended_early.is_none() && frames > 0 && (seconds_without_frames == 0 || missed_frames == 0);
     ViewerStats {
         index,
         session,
@@ -135,13 +138,14 @@ pub(crate) fn viewer(
         dropped_server,
         missed_frames,
         max_gap_ms: ms(max_gap),
-        seconds_without_frames: timeline.iter().filter(|n| **n == 0).count(),
+        seconds_without_frames,
         timeline,
         header_render_ms: header_ms(|h| h.render_us),
         header_encode_ms: header_ms(|h| h.encode_us),
         bad_frames: rec.bad_frames,
         server_errors: rec.server_errors.clone(),
         ended_early,
+        served_throughout,
     }
 }
 
@@ -168,6 +172,8 @@ pub(crate) fn summary(viewers: &[ViewerStats], pooled_ms: Vec<f64>) -> PointSumm
             && viewers
                 .iter()
                 .all(|v| v.seconds_without_frames == 0 && v.ended_early.is_none()),
+        every_viewer_served_throughout: !viewers.is_empty()
+            && viewers.iter().all(|v| v.served_throughout),
         viewers_ended_early: viewers.iter().filter(|v| v.ended_early.is_some()).count(),
         bad_frames: viewers.iter().map(|v| v.bad_frames).sum(),
     }
@@ -241,7 +247,26 @@ mod tests {
         assert!((v.max_gap_ms - 1080.0).abs() < 1e-6);
         assert_eq!(v.header_render_ms, Some(2.0));
         let s = summary(&[v], vec![220.0, 1200.0]);
-        assert!(s.every_viewer_every_second);
+        assert!(s.every_viewer_every_second && s.every_viewer_served_throughout);
         assert_eq!(s.frames_total, 3);
+        // A slow server: a second without frames, but every rendered frame arrived.
+        let slow = ViewerRecord {
+            pose_sent: vec![at(0)],
+            frames: vec![frame(at(200), 1, 1, 0), frame(at(2300), 2, 1, 0)],
+            ..ViewerRecord::default()
+        };
+        let v = viewer(0, 1, 1, &slow, (at(100), at(3100)), None);
+        assert_eq!((v.seconds_without_frames, v.missed_frames), (1, 0));
+        assert!(v.served_throughout);
+        let s = summary(&[v], vec![]);
+        assert!(!s.every_viewer_every_second && s.every_viewer_served_throughout);
+        // Missing a second and a rendered frame, or leaving early, is not being served.
+        let starved = ViewerRecord {
+            frames: vec![frame(at(200), 1, 0, 0), frame(at(2300), 3, 0, 1)],
+            ..ViewerRecord::default()
+        };
+        assert!(!viewer(0, 1, 1, &starved, (at(100), at(3100)), None).served_throughout);
+        let left = viewer(0, 1, 1, &rec, (at(100), at(2100)), Some("gone".into()));
+        assert!(!left.served_throughout);
     }
 }
