@@ -40,7 +40,7 @@ FOGCAST_DEV := ./target/debug/fogcast
 
 bench: deps-runtime
 	$(CARGO) build
-	$(FOGCAST_DEV) bench --scene colonnade --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --overlap 10,25,50,75,100 $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene colonnade --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --variant 'demand:demand=on' --variant 'demand+cache:demand=on,cache=on' --overlap 10,25,50,75,100 $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene street $(BENCH_ARGS)
 

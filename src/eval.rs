@@ -142,16 +142,7 @@ impl Runner {
                         .map(|s| s.gpu_ms)
                         .sum::<f64>()
                 };
-                fog_ms.push(sum(&|s| {
-                    matches!(
-                        s,
-                        "grid_requests"
-                            | "shared_grid"
-                            | "shadow_frustum"
-                            | "froxel_lighting"
-                            | "volume_integration"
-                    )
-                }));
+                fog_ms.push(sum(&|s| crate::bench::FOG_STAGES.contains(&s)));
                 frame_ms.push(if out.stats.timestamps {
                     sum(&|_| true)
                 } else {

@@ -177,7 +177,9 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
                 value: ratio(p.fog_gpu_ms.median, reference.fog_gpu_ms.median),
                 bound: None,
             });
-            let grid_and_frustum = stage_ms(p, "shared_grid") + stage_ms(p, "shadow_frustum");
+            let grid_and_frustum = stage_ms(p, "grid_requests")
+                + stage_ms(p, "shared_grid")
+                + stage_ms(p, "shadow_frustum");
             out.push(Check {
                 what: format!(
                     "{c}: frame at {hi} viewers / reference's if its grid and frustum stages took no time (the floor the other stages set)"

@@ -14,7 +14,7 @@ pub struct BenchVariant {
 }
 
 /// Keys of a `--variant` string, with what each takes (shown in errors).
-const KEYS: [(&str, &str); 10] = [
+const KEYS: [(&str, &str); 13] = [
     ("mode", "reference|shared"),
     ("voxel", "grid voxel edge in metres, e.g. 0.5"),
     ("lookup", "nearest|trilinear"),
@@ -28,6 +28,12 @@ const KEYS: [(&str, &str); 10] = [
     ("slices", "depth slices"),
     ("temporal", "on|off"),
     ("depth_curve", "curvature of the depth-slice distribution"),
+    ("demand", "on|off: trace only the voxels froxels read"),
+    (
+        "cache",
+        "on|off: keep voxels' light bits until something moves",
+    ),
+    ("pool", "sparse grid: bricks in the pool (0: dense)"),
 ];
 
 /// The configurations for `modes`, in that order: each starts from the paper's
@@ -119,6 +125,9 @@ pub fn parse_variant(spec: &str, scene_voxel_size_m: f32) -> anyhow::Result<Benc
             "slices" => s.slices = count().ok_or_else(bad)?,
             "temporal" => s.temporal = switch().ok_or_else(bad)?,
             "depth_curve" => s.depth_curve = number().ok_or_else(bad)?,
+            "demand" => s.demand = switch().ok_or_else(bad)?,
+            "cache" => s.cache = switch().ok_or_else(bad)?,
+            "pool" => s.brick_pool = count().ok_or_else(bad)?,
             _ => unreachable!("every key of KEYS is matched"),
         }
     }
