@@ -155,7 +155,7 @@ struct FroxelSample {
 
 fn froxel_sample(v: View, xy: vec2u, slice: u32) -> FroxelSample {
     let pix = (vec2f(xy) + 0.5) * f32(v.froxel_px);
-    let dir = view_ray(v, min(pix, vec2f(v.size)));
+    let dir = view_ray(v, min(pix, vec2f(v.size) - 0.5)); // past the edge: the last pixel centre
     let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
     return FroxelSample(v.position + dir * (z / dot(dir, v.forward)), dir);
 }

@@ -13,7 +13,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         let v = views[view_index];
         if gid.x < v.frustum_dims.x && gid.y < v.frustum_dims.y {
             let pix = (vec2f(gid.xy) + 0.5) * f32(v.frustum_px);
-            let dir = view_ray(v, min(pix, vec2f(v.size)));
+            let dir = view_ray(v, min(pix, vec2f(v.size) - 0.5)); // past the edge: the last pixel centre
             let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
             let p = v.position + dir * (z / dot(dir, v.forward));
             var mask = 0u;
