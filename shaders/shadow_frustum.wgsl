@@ -18,7 +18,9 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_ind
         let v = views[view_index];
         if gid.x < v.frustum_dims.x && gid.y < v.frustum_dims.y {
             let pix = (vec2f(gid.xy) + 0.5) * f32(v.frustum_px);
-            let dir = view_ray(v, min(pix, vec2f(v.size)));
+            // A froxel centre past the image edge takes the last pixel centre (a 1×1
+            // viewer's only pixel), not the image corner.
+            let dir = view_ray(v, min(pix, vec2f(v.size) - 0.5));
             let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
             let p = v.position + dir * (z / dot(dir, v.forward));
             var mask = 0u;

@@ -19,7 +19,9 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         return;
     }
     let pix = (vec2f(gid.xy) + 0.5) * f32(v.froxel_px);
-    let dir = view_ray(v, min(pix, vec2f(v.size)));
+    // A froxel centre past the image edge takes the last pixel centre (a 1×1
+    // viewer's only pixel), not the image corner.
+    let dir = view_ray(v, min(pix, vec2f(v.size) - 0.5));
     let inv_cos = 1.0 / dot(dir, v.forward);
     var scattered = vec3f(0.0);
     var transmittance = 1.0;
