@@ -2,7 +2,10 @@
 //! the offending value; degenerate geometry is dropped rather than traced.
 
 use fogcast::scene::Scene;
-use std::path::{Path, PathBuf};
+use scene_support::{base64, write_gltf, TempDir};
+use std::path::Path;
+
+mod scene_support;
 
 /// A valid scene; each case replaces one line (or appends a table) to break it.
 const VALID: &str = r#"
@@ -171,81 +174,6 @@ fn empty_camera_path() {
     assert_mentions(&msg, &["camera.path", "[]", "at least one point"]);
 }
 
-/// A scratch folder for glTF files, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(name: &str) -> TempDir {
-        let dir = std::env::temp_dir().join(format!(
-            "fogcast-scene-errors-{}-{name}",
-            std::process::id()
-        ));
-        std::fs::create_dir_all(&dir).expect("temp dir");
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-fn base64(bytes: &[u8]) -> String {
-    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for chunk in bytes.chunks(3) {
-        let b = [
-            chunk[0],
-            *chunk.get(1).unwrap_or(&0),
-            *chunk.get(2).unwrap_or(&0),
-        ];
-        let n = ((b[0] as u32) << 16) | ((b[1] as u32) << 8) | b[2] as u32;
-        for k in 0..4 {
-            if k <= chunk.len() {
-                out.push(ALPHABET[((n >> (18 - 6 * k)) & 63) as usize] as char);
-            } else {
-                out.push('=');
-            }
-        }
-    }
-    out
-}
-
-/// A glTF with one non-indexed triangle-list mesh of `vertices`, its buffer embedded
-/// as base64. The accessor's min/max (required for POSITION) ignore non-finite values.
-fn write_gltf(dir: &Path, vertices: &[[f32; 3]]) -> PathBuf {
-    let bytes: Vec<u8> = vertices
-        .iter()
-        .flatten()
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
-    let finite = || vertices.iter().flatten().copied().filter(|x| x.is_finite());
-    let (lo, hi) = (
-        finite().fold(f32::MAX, f32::min),
-        finite().fold(f32::MIN, f32::max),
-    );
-    let json = format!(
-        r#"{{
-  "asset": {{ "version": "2.0" }},
-  "scene": 0,
-  "scenes": [{{ "nodes": [0] }}],
-  "nodes": [{{ "mesh": 0 }}],
-  "meshes": [{{ "primitives": [{{ "attributes": {{ "POSITION": 0 }} }}] }}],
-  "buffers": [{{ "byteLength": {len}, "uri": "data:application/octet-stream;base64,{data}" }}],
-  "bufferViews": [{{ "buffer": 0, "byteOffset": 0, "byteLength": {len} }}],
-  "accessors": [{{ "bufferView": 0, "componentType": 5126, "count": {count}, "type": "VEC3",
-                   "min": [{lo}, {lo}, {lo}], "max": [{hi}, {hi}, {hi}] }}]
-}}"#,
-        len = bytes.len(),
-        data = base64(&bytes),
-        count = vertices.len(),
-    );
-    let path = dir.join("mesh.gltf");
-    std::fs::write(&path, json).expect("write glTF");
-    path
-}
-
 /// `VALID` plus the glTF `mesh.gltf`, resolved against the scene file's folder.
 fn load_with_gltf(dir: &Path) -> Result<Scene, fogcast::scene::SceneError> {
     let text = format!("{VALID}\n[[mesh]]\nkind = \"gltf\"\npath = \"mesh.gltf\"\n");
@@ -269,13 +197,13 @@ fn base64_matches_rfc_4648_vectors() {
 fn gltf_with_a_nan_vertex() {
     let dir = TempDir::new("nan");
     write_gltf(
-        &dir.0,
+        dir.path(),
         &[[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0], [0.0, 1.0, 0.0]],
     );
-    let err = load_with_gltf(&dir.0).expect_err("NaN vertex must be rejected");
+    let err = load_with_gltf(dir.path()).expect_err("NaN vertex must be rejected");
     assert_mentions(
         &err.to_string(),
-        &["mesh.gltf", "vertex 1", "NaN", "finite"],
+        &["mesh.gltf", "mesh 0 primitive 0 vertex 1", "NaN", "finite"],
     );
 }
 
@@ -291,8 +219,8 @@ fn zero_area_triangles_are_dropped() {
         [[0.0, 0.0, 2.0], [0.0, 1.0, 2.0], [1.0, 0.0, 2.0]],
     ];
     let vertices: Vec<[f32; 3]> = tris.iter().flatten().copied().collect();
-    write_gltf(&dir.0, &vertices);
-    let scene = load_with_gltf(&dir.0).expect("loads");
+    write_gltf(dir.path(), &vertices);
+    let scene = load_with_gltf(dir.path()).expect("loads");
     // VALID's floor box is 12 triangles; the glTF adds its 2 with area.
     assert_eq!(
         scene.mesh.len(),

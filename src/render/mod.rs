@@ -8,6 +8,8 @@ mod composite;
 mod froxel_lighting;
 mod gbuffer;
 mod gpu_types;
+#[cfg(test)]
+mod history_tests;
 mod ray_query;
 mod scene_gpu;
 mod shadow_frustum;

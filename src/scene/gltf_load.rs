@@ -50,8 +50,9 @@ pub(crate) fn load_triangles(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>), 
                     return Err(gltf_err(
                         path,
                         format!(
-                            "mesh {} vertex {vi} is {p:?}: positions must be finite",
-                            mesh.index()
+                            "mesh {} primitive {} vertex {vi} is {p:?}: positions must be finite",
+                            mesh.index(),
+                            prim.index()
                         ),
                     ));
                 }
@@ -67,8 +68,9 @@ pub(crate) fn load_triangles(path: &Path) -> Result<(Vec<Vec3>, Vec<[u32; 3]>), 
                     return Err(gltf_err(
                         path,
                         format!(
-                            "mesh {} index {t:?} out of range ({count} vertices)",
-                            mesh.index()
+                            "mesh {} primitive {} index {t:?} out of range ({count} vertices)",
+                            mesh.index(),
+                            prim.index()
                         ),
                     ));
                 }
