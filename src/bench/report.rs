@@ -675,8 +675,8 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
         line(
             "rays.png",
             "fog shadow rays per frame",
-            "shadow rays (fog stages)",
-            &|p| p.rays.fog_total as f64,
+            "thousand shadow rays (fog stages)",
+            &|p| p.rays.fog_total as f64 / 1e3,
         )?;
         line("memory.png", "GPU memory", "MiB", &|p| {
             p.memory.total as f64 / MIB
