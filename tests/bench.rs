@@ -76,8 +76,8 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         "rays.png",
         "memory.png",
         "stages.png",
-        "overlap_time.png",
-        "overlap_rays.png",
+        "overlap_time_shared.png",
+        "overlap_rays_shared.png",
     ] {
         let len = std::fs::metadata(out.join(file))
             .unwrap_or_else(|e| panic!("{file}: {e}"))

@@ -53,6 +53,10 @@ pub struct BenchArgs {
     /// Output folder [default: out/bench/<scene file stem>].
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Measure nothing: rewrite the tables and plots of an earlier run from its
+    /// `bench.json` in this folder.
+    #[arg(long, value_name = "DIR", conflicts_with = "out")]
+    pub replot: Option<PathBuf>,
 }
 
 impl BenchArgs {
@@ -85,6 +89,26 @@ impl BenchArgs {
 
 /// Runs `fogcast bench` with a progress bar on stderr; prints where the report went.
 pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
+    if let Some(dir) = &args.replot {
+        let path = dir.join("bench.json");
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            anyhow::anyhow!(
+                "--replot {}: cannot read {}: {e}",
+                dir.display(),
+                path.display()
+            )
+        })?;
+        let report: super::BenchReport = serde_json::from_str(&text).map_err(|e| {
+            anyhow::anyhow!(
+                "--replot {}: {} is not a bench report: {e}",
+                dir.display(),
+                path.display()
+            )
+        })?;
+        super::report::write(&report, dir)?;
+        println!("rewrote the tables and plots in {}", dir.display());
+        return Ok(());
+    }
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let cfg = args.config(command)?;
     let started = std::time::Instant::now();

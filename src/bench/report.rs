@@ -1,6 +1,7 @@
 //! Writes a [`BenchReport`]: `bench.json` (everything), `bench.csv` (a row per point),
 //! `bench.md` (tables in the shape of paper 000's Tables 1–3, the stage breakdown, the
-//! issue-5 checks, the fixed-overlap results) and PNG plots.
+//! issue-5 checks, the fixed-overlap results) and PNG plots (`overlap_time_<config>.png`
+//! and `overlap_rays_<config>.png` per configuration compared with `reference`).
 
 use super::{BenchPoint, BenchReport, Scenario};
 use crate::render::Mode;
@@ -677,8 +678,8 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
         line(
             "rays.png",
             "fog shadow rays per frame",
-            "shadow rays (fog stages)",
-            &|p| p.rays.fog_total as f64,
+            "thousand shadow rays (fog stages)",
+            &|p| p.rays.fog_total as f64 / 1e3,
         )?;
         line("memory.png", "GPU memory", "MiB", &|p| {
             p.memory.total as f64 / MIB
@@ -714,32 +715,32 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
         )?;
     }
     let overlaps = overlaps(r);
-    if !overlaps.is_empty() && has_reference(r) {
+    if overlaps.is_empty() || !has_reference(r) {
+        return Ok(());
+    }
+    // One pair of plots per configuration: five overlaps each fit the palette.
+    for c in challengers(r) {
         let ratio_series = |of: &PairRatio| -> Vec<Series> {
-            let mut series = Vec::new();
-            let mut xs = Vec::new();
-            for c in challengers(r) {
-                for &overlap_pct in &overlaps {
-                    let s = Scenario::Overlap { overlap_pct };
-                    let points: Vec<(f64, f64)> = series_of(r, s, c)
-                        .into_iter()
-                        .filter_map(|p| {
-                            point(r, s, "reference", p.viewers)
-                                .map(|q| (p.viewers as f64, of(p, q)))
-                        })
-                        .collect();
-                    xs.extend(points.iter().map(|p| p.0));
-                    series.push(Series {
-                        name: format!("{c}, {overlap_pct} % overlap"),
-                        points,
-                    });
-                }
-            }
-            let (lo, hi) = xs
+            let mut series: Vec<Series> = overlaps
                 .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-                    (a.min(x), b.max(x))
-                });
+                .map(|&overlap_pct| {
+                    let s = Scenario::Overlap { overlap_pct };
+                    Series {
+                        name: format!("{overlap_pct} % overlap"),
+                        points: series_of(r, s, c)
+                            .into_iter()
+                            .filter_map(|p| {
+                                point(r, s, "reference", p.viewers)
+                                    .map(|q| (p.viewers as f64, of(p, q)))
+                            })
+                            .collect(),
+                    }
+                })
+                .collect();
+            let xs = series.iter().flat_map(|s| s.points.iter().map(|p| p.0));
+            let (lo, hi) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(x), b.max(x))
+            });
             if lo.is_finite() {
                 series.push(Series {
                     name: "break-even (= reference)".into(),
@@ -748,9 +749,13 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
             }
             series
         };
+        let file = file_safe(c);
         plot(
-            &out.join("overlap_time.png"),
-            &format!("{}: fixed overlap, frame GPU time / reference's", r.scene),
+            &out.join(format!("overlap_time_{file}.png")),
+            &format!(
+                "{}: fixed overlap, {c} frame GPU time / reference's",
+                r.scene
+            ),
             "viewers",
             "frame GPU ms / reference (median per-frame ratio)",
             &ratio_series(&paired_ratio),
@@ -759,8 +764,8 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
             false,
         )?;
         plot(
-            &out.join("overlap_rays.png"),
-            &format!("{}: fixed overlap, fog rays / reference's", r.scene),
+            &out.join(format!("overlap_rays_{file}.png")),
+            &format!("{}: fixed overlap, {c} fog rays / reference's", r.scene),
             "viewers",
             "fog shadow rays / reference",
             &ratio_series(&|p, q| ratio(p.rays.fog_total as f64, q.rays.fog_total as f64)),
@@ -770,6 +775,20 @@ fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {
         )?;
     }
     Ok(())
+}
+
+/// A configuration name as a file-name part: anything but letters, digits, `-` and `_`
+/// becomes `_`.
+fn file_safe(name: &str) -> String {
+    name.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
 }
 
 /// Writes `bench.json`, `bench.csv`, `bench.md` and the plots into `out`.
