@@ -22,7 +22,7 @@ use fogcast::gpu::GpuContext;
 use fogcast::metrics::compare;
 use fogcast::render::{FrameOutput, Mode, Renderer, Settings};
 use fogcast::scene::{Bvh, Camera, LightDesc, MediumDesc, MeshDesc, Scene, SceneDesc};
-use fogcast::truth::{render_truth_radiance, tone_map, TruthSettings};
+use fogcast::truth::{render_truth_radiance, tone_map_image, TruthSettings};
 use glam::Vec3;
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
@@ -113,6 +113,16 @@ position = [0.0, 2.0, 2.0]
 intensity = 20.0
 "#;
 
+/// The parts of an ordinary scene of this fixture: cases swap one part or add some.
+const STANDARD: [&str; 5] = [RENDER, GEOMETRY, CAMERA_LOOKING_IN, SUN, FOG];
+
+/// The standard scene with `medium` in place of its fog.
+fn standard_with_medium(medium: &str) -> Scene {
+    let mut parts = STANDARD;
+    parts[4] = medium;
+    load(&scene_text(&parts))
+}
+
 fn scene_text(parts: &[&str]) -> String {
     let mut text = String::from("name = \"hard\"\n");
     for p in parts {
@@ -145,6 +155,7 @@ struct Rendered {
 
 /// All three modes of one case.
 struct Outcome {
+    case: String,
     gpu: Vec<Rendered>,
     truth: Vec<Vec<u8>>,
     truth_radiance: Vec<Vec<Vec3>>,
@@ -220,11 +231,7 @@ fn render_shot(case: &str, scene: &Scene, shot: &Shot, agreement: Agreement) -> 
     }
     let truth: Vec<Vec<u8>> = truth_radiance
         .iter()
-        .map(|img| {
-            img.iter()
-                .flat_map(|c| tone_map(*c, scene.render.exposure))
-                .collect()
-        })
+        .map(|img| tone_map_image(img, scene.render.exposure))
         .collect();
     check_image(case, "truth", &truth, w, h);
     dump(case, "truth", &truth, w, h);
@@ -258,6 +265,7 @@ fn render_shot(case: &str, scene: &Scene, shot: &Shot, agreement: Agreement) -> 
         })
         .collect();
     Outcome {
+        case: case.to_string(),
         gpu,
         truth,
         truth_radiance,
@@ -387,6 +395,33 @@ fn max_scattered(r: &Rendered) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// Some froxel column of both GPU modes ends nearly opaque (transmittance < 10⁻³).
+fn assert_opaque_somewhere(out: &Outcome) {
+    for r in &out.gpu {
+        let t = min_transmittance(r);
+        assert!(
+            t < 1e-3,
+            "{} ({:?}): the dense medium lets {t} through",
+            out.case,
+            r.mode
+        );
+    }
+}
+
+/// Both GPU modes scatter light in the fog: the brightest integrated froxel exceeds
+/// `min` (linear radiance) in some channel.
+fn assert_fog_lit(out: &Outcome, min: f32) {
+    for r in &out.gpu {
+        let brightest = max_scattered(r);
+        assert!(
+            brightest > min,
+            "{} ({:?}): the fog is dark, brightest froxel {brightest} ≤ {min}",
+            out.case,
+            r.mode
+        );
+    }
+}
+
 /// Brightest pixel luminance of a truth radiance image (linear, before exposure).
 fn max_radiance(img: &[Vec3]) -> f32 {
     img.iter()
@@ -408,13 +443,7 @@ max = [8.0, 6.0, 8.0]
 scattering = [0.0, 0.0, 0.0]
 absorption = 0.0
 "#;
-    let scene = load(&scene_text(&[
-        RENDER,
-        GEOMETRY,
-        CAMERA_LOOKING_IN,
-        SUN,
-        medium,
-    ]));
+    let scene = standard_with_medium(medium);
     let mut bare = scene.clone();
     bare.media.clear();
     // Only surfaces are left to disagree on.
@@ -449,8 +478,7 @@ scattering = [0.000001, 0.000001, 0.000001]
 absorption = 0.0
 emission = [0.02, 0.015, 0.01]
 "#;
-    let text = scene_text(&[RENDER, GEOMETRY, CAMERA_LOOKING_IN, SUN, medium]);
-    let scene = load(&text);
+    let scene = standard_with_medium(medium);
     let out = render_all("σt = 1e-6 with emission", &scene, flip(0.06, 0.06));
     for r in &out.gpu {
         // ~10 m of emission 0.02 per metre along a column, with transmittance 1.
@@ -479,17 +507,8 @@ max = [2.0, 3.0, 2.0]
 scattering = [10000.0, 10000.0, 10000.0]
 absorption = 0.0
 "#;
-    let scene = load(&scene_text(&[
-        RENDER,
-        GEOMETRY,
-        CAMERA_LOOKING_IN,
-        SUN,
-        medium,
-    ]));
-    for r in render_all("extinction 1e4", &scene, flip(0.1, 0.1)).gpu {
-        let t = min_transmittance(&r);
-        assert!(t < 1e-3, "{:?}: the dense block lets {t} through", r.mode);
-    }
+    let scene = standard_with_medium(medium);
+    assert_opaque_somewhere(&render_all("extinction 1e4", &scene, flip(0.1, 0.1)));
 }
 
 #[test]
@@ -503,19 +522,21 @@ scattering = [10000.0, 10000.0, 10000.0]
 absorption = 0.0
 g = 0.5
 "#;
-    let scene = load(&scene_text(&[
-        RENDER,
-        GEOMETRY,
-        CAMERA_LOOKING_IN,
-        SUN,
-        medium,
-    ]));
-    for r in render_all("camera inside σt = 1e4 fog", &scene, flip(0.05, 0.05)).gpu {
-        // Opaque from the first slice on: every column ends at zero transmittance.
-        let t = min_transmittance(&r);
+    let scene = standard_with_medium(medium);
+    let out = render_all("camera inside σt = 1e4 fog", &scene, flip(0.05, 0.05));
+    // Opaque from the first slice on: every column ends at zero transmittance.
+    for r in &out.gpu {
+        // Each viewer's block is slices × columns; its last slice is the block's end.
+        let columns = r.integrated.len() / (128 * VIEWERS);
+        let t = r
+            .integrated
+            .chunks_exact(128 * columns)
+            .flat_map(|viewer| &viewer[127 * columns..])
+            .map(|f| f[3])
+            .fold(0.0, f32::max);
         assert!(
             t < 1e-3,
-            "{:?}: transmittance {t} inside an opaque medium",
+            "{:?}: transmittance {t} through an opaque medium",
             r.mode
         );
     }
@@ -541,18 +562,15 @@ noise = { frequency = 0.8, octaves = 4, amplitude = 1.0, wind = [0.5, 0.0, 0.25]
         FOG,
         medium,
     ]));
-    for r in render_all("camera inside fog", &scene, flip(0.07, 0.07)).gpu {
+    let out = render_all("camera inside fog", &scene, flip(0.07, 0.07));
+    for r in &out.gpu {
         assert!(
-            min_transmittance(&r) < 0.5,
+            min_transmittance(r) < 0.5,
             "{:?}: no visible fog around the camera",
             r.mode
         );
-        assert!(
-            max_scattered(&r) > 0.01,
-            "{:?}: the fog scatters no light",
-            r.mode
-        );
     }
+    assert_fog_lit(&out, 0.01);
 }
 
 #[test]
@@ -575,13 +593,10 @@ look_at = [[0.0, 1.0, 0.0], [4.0, 1.5, 6.0]]
 fov_deg = 60.0
 "#;
     let scene = load(&scene_text(&[RENDER, GEOMETRY, camera, SUN, medium]));
-    for r in render_all("camera on a medium boundary", &scene, flip(0.07, 0.07)).gpu {
-        assert!(
-            max_scattered(&r) > 0.05,
-            "{:?}: the fog scatters no light",
-            r.mode
-        );
-    }
+    assert_fog_lit(
+        &render_all("camera on a medium boundary", &scene, flip(0.07, 0.07)),
+        0.05,
+    );
 }
 
 /// Medium of the phase-function cases: uniform, so that only the phase peak matters.
@@ -617,13 +632,7 @@ fn hg_case(case: &str, g: f32, light: &str, look_into: Vec3, look_away: Vec3, bo
         &hg_medium(g),
     ]));
     let out = render_all(case, &scene, bound);
-    for r in &out.gpu {
-        assert!(
-            max_scattered(r) > 0.01,
-            "{case} ({:?}): the fog scatters no light",
-            r.mode
-        );
-    }
+    assert_fog_lit(&out, 0.01);
     // The peak is where HG says: the brighter viewer is the one facing the peak.
     let peak_viewer = if g > 0.0 { 0 } else { 1 };
     let [m0, m1] = [0, 1].map(|v| max_radiance(&out.truth_radiance[v]));
@@ -730,15 +739,11 @@ fn grazing_sun_half_a_degree_above_the_horizon() {
         &sun,
         FOG,
     ]));
-    let out = render_all("grazing sun (0.5°)", &scene, flip(0.08, 0.08));
-    for r in &out.gpu {
-        // Half the fog is in the wall's and pillar's long shadows, the rest lit.
-        assert!(
-            max_scattered(r) > 0.05,
-            "{:?}: the grazing sun lights no fog",
-            r.mode
-        );
-    }
+    // Half the fog is in the wall's and pillar's long shadows, the rest lit.
+    assert_fog_lit(
+        &render_all("grazing sun (0.5°)", &scene, flip(0.08, 0.08)),
+        0.05,
+    );
 }
 
 /// Render-space position of the centre of froxel (`x`, `y`, `slice`) of `cam`, for the
@@ -776,38 +781,24 @@ fn with_point_light_at(parts: &[&str], render_space: Vec3, origin: glam::DVec3) 
 fn point_light_at_a_froxel_centre() {
     // Distance → 0 at a froxel sample of viewer 0 (froxel 3, 2 at about 5 m): the
     // inverse square is clamped at 0.1 m in every mode.
-    let parts = [RENDER, GEOMETRY, CAMERA_LOOKING_IN, SUN, FOG];
-    let base = load(&scene_text(&parts));
+    let base = load(&scene_text(&STANDARD));
     let cam = cameras(&base)[0];
     let centre = froxel_centre(&base, &cam, [3, 2, 72]);
-    let scene = with_point_light_at(&parts, centre, base.origin);
+    let scene = with_point_light_at(&STANDARD, centre, base.origin);
     let out = render_all("point light at a froxel centre", &scene, flip(0.08, 0.08));
-    for r in &out.gpu {
-        assert!(
-            max_scattered(r) > 0.05,
-            "{:?}: the light lights no fog",
-            r.mode
-        );
-    }
+    assert_fog_lit(&out, 0.05);
 }
 
 #[test]
 fn point_light_at_a_voxel_centre() {
     // Distance → 0 at a shared-grid voxel centre: the grid's shadow ray has zero length.
-    let parts = [RENDER, GEOMETRY, CAMERA_LOOKING_IN, SUN, FOG];
-    let base = load(&scene_text(&parts));
+    let base = load(&scene_text(&STANDARD));
     let (grid_min, _) = base.media_bounds().expect("the scene has media");
     let voxel = base.render.voxel_size_m;
     let centre = grid_min + (Vec3::new(16.0, 4.0, 20.0) + 0.5) * voxel;
-    let scene = with_point_light_at(&parts, centre, base.origin);
+    let scene = with_point_light_at(&STANDARD, centre, base.origin);
     let out = render_all("point light at a voxel centre", &scene, flip(0.07, 0.07));
-    for r in &out.gpu {
-        assert!(
-            max_scattered(r) > 0.05,
-            "{:?}: the light lights no fog",
-            r.mode
-        );
-    }
+    assert_fog_lit(&out, 0.05);
 }
 
 /// far/near = 10⁷ stretches the 128 slices: the first ends ~6 m from the eye, so the
@@ -823,38 +814,27 @@ voxel_size_m = 0.5
 sky = [0.5, 0.6, 0.8]
 ambient = [0.1, 0.1, 0.12]
 "#;
-    let scene = load(&scene_text(&[
-        render,
-        GEOMETRY,
-        CAMERA_LOOKING_IN,
-        SUN,
-        FOG,
-    ]));
+    let mut parts = STANDARD;
+    parts[0] = render;
+    let scene = load(&scene_text(&parts));
     let out = render_all("near 1 mm, far 10 km", &scene, flip(0.13, 0.13));
-    for r in &out.gpu {
-        assert!(
-            max_scattered(r) > 0.01,
-            "{:?}: the fog scatters no light",
-            r.mode
-        );
-    }
+    assert_fog_lit(&out, 0.01);
+}
+
+/// The standard scene seen by viewers of `width`×`height` pixels.
+fn tiny_viewers(case: &str, width: u32, height: u32, bound: f64) {
+    let scene = load(&scene_text(&STANDARD));
+    let shot = Shot {
+        cameras: cameras(&scene),
+        width,
+        height,
+    };
+    render_shot(case, &scene, &shot, Agreement::MeanLuma(bound));
 }
 
 #[test]
 fn viewer_of_1x1_pixel() {
-    let scene = load(&scene_text(&[
-        RENDER,
-        GEOMETRY,
-        CAMERA_LOOKING_IN,
-        SUN,
-        FOG,
-    ]));
-    let shot = Shot {
-        cameras: cameras(&scene),
-        width: 1,
-        height: 1,
-    };
-    render_shot("1×1 viewer", &scene, &shot, Agreement::MeanLuma(0.02));
+    tiny_viewers("1×1 viewer", 1, 1, 0.02);
 }
 
 /// A 7×3 viewer is one froxel column, sampled through one ray (the last pixel row's
@@ -862,19 +842,7 @@ fn viewer_of_1x1_pixel() {
 /// of one ray for all 21 pixels: measured 0.049 darker than truth.
 #[test]
 fn viewer_of_7x3_pixels() {
-    let scene = load(&scene_text(&[
-        RENDER,
-        GEOMETRY,
-        CAMERA_LOOKING_IN,
-        SUN,
-        FOG,
-    ]));
-    let shot = Shot {
-        cameras: cameras(&scene),
-        width: 7,
-        height: 3,
-    };
-    render_shot("7×3 viewer", &scene, &shot, Agreement::MeanLuma(0.08));
+    tiny_viewers("7×3 viewer", 7, 3, 0.08);
 }
 
 /// Moves every position in the scene by `offset` metres (directions stay).
@@ -962,18 +930,16 @@ fn scene_far_from_the_origin_renders_as_at_the_origin() {
 fn no_lights() {
     let scene = load(&scene_text(&[RENDER, GEOMETRY, CAMERA_LOOKING_IN, FOG]));
     assert!(scene.lights.is_empty());
-    for r in render_all("no lights", &scene, flip(0.07, 0.07)).gpu {
+    let out = render_all("no lights", &scene, flip(0.07, 0.07));
+    for r in &out.gpu {
         assert_eq!(
             r.frame.stats.rays.total, 0,
             "{:?}: shadow rays traced without lights",
             r.mode
         );
-        assert!(
-            max_scattered(&r) > 1e-3,
-            "{:?}: ambient light is not scattered",
-            r.mode
-        );
     }
+    // Ambient light alone is scattered.
+    assert_fog_lit(&out, 1e-3);
 }
 
 /// `n` lights of every kind spread over the scene.
@@ -1072,9 +1038,8 @@ base = [-2.0, 0.0, 2.0]
 radius = 0.000000001
 height = 3.0
 "#;
-    let parts = [RENDER, GEOMETRY, CAMERA_LOOKING_IN, SUN, FOG];
-    let clean = load(&scene_text(&parts));
-    let text = scene_text(&[RENDER, GEOMETRY, CAMERA_LOOKING_IN, SUN, FOG, extra]);
+    let clean = load(&scene_text(&STANDARD));
+    let text = scene_text(&[&STANDARD[..], &[extra]].concat());
     let scene = Scene::from_toml(&text, &dir.path().join("scene.toml")).expect("scene loads");
     let slivers = scene.mesh.len() - clean.mesh.len();
     assert!(

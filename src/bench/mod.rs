@@ -388,16 +388,6 @@ fn flip_per_viewer(reference: &FrameOutput, test: &FrameOutput) -> anyhow::Resul
         .collect()
 }
 
-/// The 1-minute load average from `/proc/loadavg` (none where there is no such file).
-fn load_average() -> Option<f64> {
-    std::fs::read_to_string("/proc/loadavg")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
-
 fn check(cfg: &BenchConfig) -> anyhow::Result<()> {
     let counts = |flag: &str, v: &[usize]| -> anyhow::Result<()> {
         for (i, &n) in v.iter().enumerate() {
@@ -461,7 +451,7 @@ fn check(cfg: &BenchConfig) -> anyhow::Result<()> {
 pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<BenchReport> {
     check(cfg)?;
     let started = std::time::Instant::now();
-    let load_at_start = load_average();
+    let load_at_start = crate::report::load_average();
     let scene = Arc::new(Scene::load(&cfg.scene)?);
     std::fs::create_dir_all(&cfg.out)
         .map_err(|e| anyhow::anyhow!("--out {}: cannot create it: {e}", cfg.out.display()))?;
@@ -558,7 +548,9 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         scene: scene.name.clone(),
         adapter: GpuContext::last_adapter_name(),
         cpu_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        load_average: load_at_start.zip(load_average()).map(|(a, b)| [a, b]),
+        load_average: load_at_start
+            .zip(crate::report::load_average())
+            .map(|(a, b)| [a, b]),
         width: cfg.width,
         height: cfg.height,
         warmup: cfg.warmup,

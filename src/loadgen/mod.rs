@@ -315,16 +315,6 @@ pub struct ServerStats {
     pub resident_memory_mib: f64,
 }
 
-/// 1-minute load average of this machine (`/proc/loadavg`), when known.
-fn load_average() -> Option<f64> {
-    std::fs::read_to_string("/proc/loadavg")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
-}
-
 /// One sweep point.
 #[derive(Debug, Clone, Serialize)]
 pub struct PointResult {
@@ -542,7 +532,7 @@ async fn run_point(
     }
     let t1 = Instant::now();
     let after = scrape::metrics(&target.authority).await?;
-    let load_average_1m = load_average();
+    let load_average_1m = crate::report::load_average();
 
     let _ = stop_tx.send(true);
     let mut per_viewer = Vec::with_capacity(sessions);

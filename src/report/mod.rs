@@ -345,6 +345,17 @@ pub fn progress_line(label: &str, done: usize, total: usize) -> String {
     format!("{label} [{:<50}] {:3}%", "#".repeat(pct), pct * 2)
 }
 
+/// The machine's 1-minute load average (`/proc/loadavg`), where there is one: reports
+/// print it beside every time, since these machines are shared.
+pub fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

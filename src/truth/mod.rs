@@ -112,6 +112,15 @@ pub fn tone_map(c: Vec3, exposure: f32) -> [u8; 4] {
     [q(aces.x), q(aces.y), q(aces.z), 255]
 }
 
+/// One image of linear radiance (as [`render_truth_radiance`] returns) to RGBA8 with
+/// [`tone_map`].
+pub fn tone_map_image(radiance: &[Vec3], exposure: f32) -> Vec<u8> {
+    radiance
+        .iter()
+        .flat_map(|c| tone_map(*c, exposure))
+        .collect()
+}
+
 struct PixelContext<'a> {
     scene: &'a Scene,
     /// The scene's triangles at `time_s`: its static mesh, plus the movers where it
@@ -268,11 +277,7 @@ pub fn render_truth(
         render_truth_radiance(scene, bvh, cameras, size, time_s, settings, progress);
     let images = radiance
         .iter()
-        .map(|img| {
-            img.iter()
-                .flat_map(|c| tone_map(*c, scene.render.exposure))
-                .collect()
-        })
+        .map(|img| tone_map_image(img, scene.render.exposure))
         .collect();
     (images, counts)
 }
