@@ -43,6 +43,7 @@ const FLAG_HISTORY: u32 = 16u;   // temporal reprojection has a valid history
 const FLAG_DEMAND: u32 = 32u;    // grid: trace only voxels that froxels requested
 const FLAG_CACHE: u32 = 64u;     // grid: keep voxels' light bits until a light changes
 const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (sparse)
+const FLAG_CULL: u32 = 256u;     // demand: froxels behind the depth buffer are not lit (froxel_cull.wgsl)
 
 struct View {
     view_proj: mat4x4f,

@@ -8,6 +8,7 @@
 @group(1) @binding(2) var<storage, read_write> froxels: array<vec2u>;
 @group(1) @binding(3) var<storage, read> history: array<vec2u>;
 @group(1) @binding(4) var<storage, read> brick_table: array<u32>;
+@group(1) @binding(5) var<storage, read> column_limit: array<u32>;
 
 // A voxel of a sparse grid whose brick was not allocated (pool full).
 const MASK_MISSING: u32 = 0x100u;
@@ -69,10 +70,16 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         let v = views[view_index];
         if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y {
             let index = v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * slice);
+            // Hidden behind every surface this column shows: never reaches the image.
+            let hidden = (frame.flags & FLAG_CULL) != 0u
+                && slice > column_limit[view_index * v.froxel_dims.x * v.froxel_dims.y + gid.x + v.froxel_dims.x * gid.y];
             let sample = froxel_sample(v, gid.xy, slice);
             let p = sample.p;
             let dir = sample.dir;
-            let m = sample_media(p);
+            var m = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
+            if !hidden {
+                m = sample_media(p);
+            }
             var out = vec4f(0.0);
             if m.extinction > 0.0 || any(m.emission > vec3f(0.0)) {
                 var vis: array<f32, 8>;

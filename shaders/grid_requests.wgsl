@@ -11,6 +11,7 @@
 @group(1) @binding(0) var<storage, read_write> requests: array<atomic<u32>>;
 @group(1) @binding(1) var<storage, read_write> brick_table: array<u32>;
 @group(1) @binding(2) var<storage, read_write> slot_brick: array<u32>;
+@group(1) @binding(3) var<storage, read> column_limit: array<u32>;
 
 const PHASE_DENSE: u32 = 0u;
 const PHASE_BRICKS: u32 = 1u;
@@ -64,7 +65,9 @@ fn request_froxel(gid: vec3u) {
     let slice = frame.frustum_slices + gid.z % grid_slices;
     if view_index < frame.view_count {
         let v = views[view_index];
-        if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y {
+        let hidden = (frame.flags & FLAG_CULL) != 0u
+            && slice > column_limit[view_index * v.froxel_dims.x * v.froxel_dims.y + gid.x + v.froxel_dims.x * gid.y];
+        if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y && !hidden {
             let p = froxel_sample(v, gid.xy, slice).p;
             if may_have_media(p) {
                 let g = grid_coord(p);

@@ -12,7 +12,10 @@ pub(crate) struct FroxelLighting {
 
 impl FroxelLighting {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ctx.storage_layout("froxel lighting", &[false, false, true, false, false]);
+        let layout = ctx.storage_layout(
+            "froxel lighting",
+            &[false, false, true, false, false, false],
+        );
         let module = super::stage_shader(
             ctx,
             "froxel_lighting",
@@ -55,6 +58,7 @@ impl FroxelLighting {
                 &volumes.froxels,
                 &volumes.froxel_history,
                 bricks,
+                &volumes.column_limit,
             ],
         );
         let mut pass = compute_pass(enc, "froxel_lighting", ts.writes(Stage::FroxelLighting));

@@ -11,6 +11,7 @@ pub(crate) const FLAG_HISTORY: u32 = 16;
 pub(crate) const FLAG_DEMAND: u32 = 32;
 pub(crate) const FLAG_CACHE: u32 = 64;
 pub(crate) const FLAG_SPARSE: u32 = 128;
+pub(crate) const FLAG_CULL: u32 = 256;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 8;

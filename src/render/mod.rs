@@ -5,6 +5,7 @@
 //! composite (each one dispatch for all viewers), then one readback.
 
 mod composite;
+mod froxel_cull;
 mod froxel_lighting;
 mod gbuffer;
 mod gpu_types;
@@ -170,6 +171,16 @@ impl Settings {
     fn frustum_slices(&self) -> u32 {
         (self.slices as f32 * self.frustum_slice_fraction).ceil() as u32
     }
+
+    /// Whether froxels hidden behind the depth buffer are culled: with the demand-driven
+    /// grid (dense or sparse) of `shared`, when some slices read the grid and no temporal
+    /// history needs the hidden froxels.
+    pub fn culls_hidden_froxels(&self) -> bool {
+        self.mode == Mode::Shared
+            && (self.demand || self.brick_pool > 0)
+            && !self.temporal
+            && self.frustum_slices() < self.slices
+    }
 }
 
 /// Stages with a GPU time.
@@ -269,6 +280,7 @@ pub struct Renderer {
     volumes: Option<ViewerVolumes>,
     gbuffer: gbuffer::GBuffer,
     frustum: shadow_frustum::ShadowFrustum,
+    cull: froxel_cull::FroxelCull,
     lighting: froxel_lighting::FroxelLighting,
     integration: volume_integration::VolumeIntegration,
     composite: composite::Composite,
@@ -345,6 +357,7 @@ impl Renderer {
         Ok(Renderer {
             gbuffer: gbuffer::GBuffer::new(&ctx),
             frustum: shadow_frustum::ShadowFrustum::new(&ctx, &scene_gpu.layout),
+            cull: froxel_cull::FroxelCull::new(&ctx, &scene_gpu.layout),
             lighting: froxel_lighting::FroxelLighting::new(&ctx, &scene_gpu.layout),
             integration: volume_integration::VolumeIntegration::new(&ctx, &scene_gpu.layout),
             composite: composite::Composite::new(&ctx, &scene_gpu.layout),
@@ -501,6 +514,9 @@ impl Renderer {
         if s.cache {
             flags |= FLAG_CACHE;
         }
+        if s.culls_hidden_froxels() {
+            flags |= FLAG_CULL;
+        }
         // Animated lights: upload the lights at this time, marking the ones that changed.
         let lights: Vec<LightGpu> = scene.lights_at(time_s).iter().map(LightGpu::from).collect();
         let dirty_lights = match &self.lights_uploaded {
@@ -598,7 +614,7 @@ impl Renderer {
         }
         let started = Instant::now();
         self.ensure_volumes(cameras.len(), width, height)?;
-        let (_, has_media) = self.upload(cameras, time_s)?;
+        let (flags, has_media) = self.upload(cameras, time_s)?;
         let ctx = self.ctx.clone();
         let has_lights = !self.scene.lights.is_empty();
         let shared = self.settings.mode == Mode::Shared;
@@ -630,8 +646,20 @@ impl Renderer {
         if has_media {
             if shared && has_lights {
                 if let Some(grid) = &self.grid {
+                    let culled = flags & FLAG_CULL != 0;
+                    if culled {
+                        self.cull
+                            .add_passes(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
+                    }
                     if (self.settings.demand || grid.is_sparse())
-                        && grid.add_request_passes(&ctx, &mut enc, scene_bg, vol, &self.timestamps)
+                        && grid.add_request_passes(
+                            &ctx,
+                            &mut enc,
+                            scene_bg,
+                            vol,
+                            &self.timestamps,
+                            culled,
+                        )
                     {
                         dispatches
                             .push(("grid_requests", SharedShadowGrid::request_workgroups(vol)));

@@ -123,7 +123,7 @@ impl SharedShadowGrid {
             if policy.sparse() { "" } else { " or a sparse grid (--brick-pool N)" }
         );
         let layout = ctx.storage_layout("shared grid", &[true, true, false, true, false]);
-        let request_layout = ctx.storage_layout("grid requests", &[true, true, true]);
+        let request_layout = ctx.storage_layout("grid requests", &[true, true, true, false]);
         let request_module = super::stage_shader(
             ctx,
             "grid_requests",
@@ -235,6 +235,7 @@ impl SharedShadowGrid {
         scene: &wgpu::BindGroup,
         volumes: &ViewerVolumes,
         ts: &Timestamps,
+        span_started: bool,
     ) -> bool {
         enc.clear_buffer(&self.requests, 0, None);
         if self.policy.sparse() {
@@ -246,7 +247,12 @@ impl SharedShadowGrid {
         let bg = ctx.bind_buffers(
             "grid requests",
             &self.request_layout,
-            &[&self.requests, &self.brick_table, &self.slot_brick],
+            &[
+                &self.requests,
+                &self.brick_table,
+                &self.slot_brick,
+                &volumes.column_limit,
+            ],
         );
         let froxels = Self::request_workgroups(volumes);
         let p = &self.request_pipelines;
@@ -264,7 +270,7 @@ impl SharedShadowGrid {
             let mut pass = compute_pass(
                 enc,
                 "grid_requests",
-                ts.span_writes(Stage::GridRequests, i == 0, i == last),
+                ts.span_writes(Stage::GridRequests, i == 0 && !span_started, i == last),
             );
             pass.set_pipeline(pipeline);
             pass.set_bind_group(0, scene, &[]);

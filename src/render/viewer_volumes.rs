@@ -29,6 +29,10 @@ pub struct ViewerVolumes {
     pub(crate) froxel_history: wgpu::Buffer,
     pub(crate) integrated: wgpu::Buffer,
     pub(crate) frustum: wgpu::Buffer,
+    /// Hidden-froxel culling: farthest depth of each froxel column's 8 × 8 pixel tile,
+    /// and the last slice each column must light (u32 per column).
+    pub(crate) tile_depth: wgpu::Buffer,
+    pub(crate) column_limit: wgpu::Buffer,
     pub(crate) output: wgpu::Buffer,
     pub(crate) gbuf_position: wgpu::Texture,
     pub(crate) gbuf_normal: wgpu::Texture,
@@ -51,6 +55,7 @@ impl ViewerVolumes {
         let frustum_per_view =
             (layout.frustum_dims[0] * layout.frustum_dims[1] * frustum_slices.max(1)) as u64;
         let pixels = (layout.width * layout.height) as u64;
+        let columns = n * (layout.froxel_dims[0] * layout.froxel_dims[1]) as u64;
         let tex = |label: &str, format: wgpu::TextureFormat| {
             ctx.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
@@ -97,6 +102,8 @@ impl ViewerVolumes {
                 n * frustum_per_view * 4,
                 wgpu::BufferUsages::empty(),
             )?,
+            tile_depth: ctx.storage("tile depth", columns * 4, wgpu::BufferUsages::empty())?,
+            column_limit: ctx.storage("column limit", columns * 4, wgpu::BufferUsages::empty())?,
             output: ctx.storage("output", n * pixels * 4, wgpu::BufferUsages::empty())?,
             gbuf_position: tex("gbuffer position", wgpu::TextureFormat::Rgba32Float),
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
@@ -128,6 +135,10 @@ impl ViewerVolumes {
             ("froxel_history", history),
             ("integrated", self.integrated.size() / n),
             ("shadow_frustum", self.frustum.size() / n),
+            (
+                "froxel_cull",
+                (self.tile_depth.size() + self.column_limit.size()) / n,
+            ),
             ("gbuffer", pixels * (16 + 8 + 4 + 4)),
             ("output", self.output.size() / n),
         ]

@@ -1,0 +1,90 @@
+//! Hidden-froxel culling (beyond paper 000), with `shaders/froxel_cull.wgsl`: with the
+//! demand-driven grid, froxels behind every surface their column shows are neither lit
+//! nor allowed to request voxels. Timed as part of the `grid_requests` stage, whose work
+//! it decides.
+
+use super::composite::texture_entry;
+use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
+use crate::gpu::{storage_entry, GpuContext};
+
+/// Pipelines of the two culling passes.
+pub(crate) struct FroxelCull {
+    layout: wgpu::BindGroupLayout,
+    tile_max: wgpu::ComputePipeline,
+    column_limit: wgpu::ComputePipeline,
+}
+
+impl FroxelCull {
+    pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
+        let layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("froxel cull"),
+                entries: &[
+                    storage_entry(0, false),
+                    storage_entry(1, false),
+                    texture_entry(2),
+                ],
+            });
+        let module = super::stage_shader(
+            ctx,
+            "froxel_cull",
+            include_str!("../../shaders/froxel_cull.wgsl"),
+        );
+        let pipeline = |entry: &str| {
+            ctx.compute_pipeline_entry(entry, &module, &[scene_layout, &layout], entry)
+        };
+        FroxelCull {
+            tile_max: pipeline("tile_max"),
+            column_limit: pipeline("column_limit_pass"),
+            layout,
+        }
+    }
+
+    /// Records both passes; they open the `grid_requests` stage's timing span.
+    pub(crate) fn add_passes(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &wgpu::BindGroup,
+        volumes: &ViewerVolumes,
+        ts: &Timestamps,
+    ) {
+        let position = volumes
+            .gbuf_position
+            .create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            });
+        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("froxel cull"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: volumes.tile_depth.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: volumes.column_limit.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&position),
+                },
+            ],
+        });
+        let [x, y] = volumes.layout.froxel_dims;
+        for (i, pipeline) in [&self.tile_max, &self.column_limit].into_iter().enumerate() {
+            let mut pass = compute_pass(
+                enc,
+                "froxel_cull",
+                ts.span_writes(Stage::GridRequests, i == 0, false),
+            );
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, scene, &[]);
+            pass.set_bind_group(1, &bg, &[]);
+            pass.dispatch_workgroups(x.div_ceil(8), y.div_ceil(8), volumes.count as u32);
+        }
+    }
+}
