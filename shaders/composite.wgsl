@@ -7,6 +7,29 @@
 @group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
 @group(1) @binding(3) var gbuf_normal: texture_2d_array<f32>;
 @group(1) @binding(4) var gbuf_albedo: texture_2d_array<f32>;
+@group(1) @binding(5) var shadow_maps: texture_depth_2d_array;
+@group(1) @binding(6) var shadow_sampler: sampler_comparison;
+
+struct ShadowMap {
+    view_proj: mat4x4f,
+    layer: i32,       // −1: no map for this light, trace a ray
+    texel_m: f32,
+    depth_bias: f32,
+    _pad: f32,
+}
+@group(1) @binding(7) var<storage, read> map_info: array<ShadowMap>;
+
+// Visibility of directional light `li` at surface point `p` (normal `n`) from its shadow
+// map, 2×2 PCF; the point is pushed along the normal by a texel to clear the map's
+// own depth steps.
+fn map_visibility(m: ShadowMap, p: vec3f, n: vec3f) -> f32 {
+    let c = m.view_proj * vec4f(p + n * m.texel_m, 1.0);
+    let uv = vec2f(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5);
+    if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) || c.z > 1.0 {
+        return 1.0; // outside every caster's bounds
+    }
+    return textureSampleCompareLevel(shadow_maps, shadow_sampler, uv, m.layer, c.z - m.depth_bias);
+}
 
 fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
     if s < 0 {
@@ -81,6 +104,11 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
                     }
                     let radiance = light_radiance(l, origin);
                     if all(radiance == vec3f(0.0)) {
+                        continue;
+                    }
+                    let m = map_info[li];
+                    if m.layer >= 0 {
+                        irradiance += radiance * ndl * map_visibility(m, p, n);
                         continue;
                     }
                     rays += 1u;

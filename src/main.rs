@@ -116,6 +116,10 @@ struct SettingsArgs {
     /// this many bricks (0: dense grid over the whole media box). Implies --demand.
     #[arg(long, default_value_t = 0)]
     brick_pool: u32,
+    /// Surface shadows of directional lights from one shared shadow map of N² texels
+    /// (mode shared; 0: a ray per pixel and light, like reference).
+    #[arg(long, default_value_t = Settings::default().shadow_map_px)]
+    shadow_map: u32,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -151,6 +155,7 @@ impl SettingsArgs {
             demand: self.demand,
             cache: self.cache,
             brick_pool: self.brick_pool,
+            shadow_map_px: self.shadow_map,
         }
     }
 }

@@ -257,3 +257,112 @@ fn islands_at_an_eighth_of_a_metre_fits_only_as_sparse_bricks() {
         assert!(e.flip_mean <= 0.05, "viewer {i}: FLIP {}", e.flip_mean);
     }
 }
+
+#[test]
+fn hidden_froxels_are_culled_without_changing_the_picture() {
+    // A viewer 2 m in front of one of colonnade's pillars with a narrow view filled by
+    // it: the fog behind the pillar (4 m of it, up to the wall) can never reach the image.
+    let scene = Arc::new(Scene::load("colonnade").unwrap());
+    let cams = vec![Camera::new(
+        glam::Vec3::new(-2.0, 2.0, -1.5),
+        glam::Vec3::new(0.0, 0.0, -1.0),
+        12f32.to_radians(),
+    )];
+    let mut gated = Renderer::new(gpu(), scene.clone(), settings(false, false)).unwrap();
+    let mut demand = Renderer::new(gpu(), scene.clone(), settings(true, false)).unwrap();
+    assert!(demand.settings().culls_hidden_froxels());
+    let a = render(&mut gated, &cams, 1.0);
+    let b = render(&mut demand, &cams, 1.0);
+    println!(
+        "froxels lit: frustum-gated {}, demand-driven (culled) {}; grid rays {} vs {}",
+        a.stats.froxels_with_media,
+        b.stats.froxels_with_media,
+        a.stats.rays.shared_grid,
+        b.stats.rays.shared_grid
+    );
+    assert!(
+        (b.stats.froxels_with_media as f64) < 0.6 * a.stats.froxels_with_media as f64,
+        "culling lit {} of {} froxels",
+        b.stats.froxels_with_media,
+        a.stats.froxels_with_media
+    );
+    assert!(b.stats.rays.shared_grid * 4 < a.stats.rays.shared_grid);
+    let differing = a.images[0]
+        .iter()
+        .zip(&b.images[0])
+        .filter(|(p, q)| p.abs_diff(**q) > 1)
+        .count();
+    assert_eq!(differing, 0, "{differing} channels differ by > 1");
+}
+
+#[test]
+fn shared_shadow_map_replaces_surface_rays_at_small_error() {
+    let scene = Arc::new(Scene::load("colonnade").unwrap());
+    let cams = scene.camera.viewers(2, 1.0);
+    let mut rays = Renderer::new(gpu(), scene.clone(), settings(false, false)).unwrap();
+    let map_settings = Settings {
+        shadow_map_px: 2048,
+        ..settings(false, false)
+    };
+    let mut map = Renderer::new(gpu(), scene.clone(), map_settings).unwrap();
+    let a = render(&mut rays, &cams, 1.0);
+    let b = render(&mut map, &cams, 1.0);
+    let map_bytes = b
+        .stats
+        .memory
+        .shared
+        .iter()
+        .find(|(n, _)| n == "shadow_maps")
+        .map(|(_, b)| *b);
+    println!(
+        "surface rays: traced {} vs map {}; map bytes {map_bytes:?}",
+        a.stats.rays.surface, b.stats.rays.surface
+    );
+    assert!(a.stats.rays.surface > 1000);
+    assert_eq!(b.stats.rays.surface, 0, "the sun is colonnade's only light");
+    assert_eq!(map_bytes, Some(2048 * 2048 * 4));
+    for (x, y) in a.images.iter().zip(&b.images) {
+        let n = x.len() as f64;
+        let mean = x
+            .iter()
+            .zip(y)
+            .map(|(p, q)| p.abs_diff(*q) as f64)
+            .sum::<f64>()
+            / n;
+        let big = x
+            .iter()
+            .zip(y)
+            .filter(|(p, q)| p.abs_diff(**q) > 24)
+            .count() as f64
+            / n;
+        println!(
+            "mean |Δ| {mean:.3} of 255, {:.2} % of channels off by > 24",
+            big * 100.0
+        );
+        assert!(mean < 1.0, "mean channel difference {mean}");
+        assert!(
+            big < 0.01,
+            "{:.2} % of channels differ by > 24",
+            big * 100.0
+        );
+    }
+    // Street has point and spot lights only: no map, every surface ray still traced.
+    let street = Arc::new(Scene::load("street").unwrap());
+    let cams = street.camera.viewers(1, 1.0);
+    let s = Settings {
+        shadow_map_px: 2048,
+        ..settings(false, false)
+    };
+    let with = render(
+        &mut Renderer::new(gpu(), street.clone(), s).unwrap(),
+        &cams,
+        1.0,
+    );
+    let without = render(
+        &mut Renderer::new(gpu(), street.clone(), settings(false, false)).unwrap(),
+        &cams,
+        1.0,
+    );
+    assert_eq!(with.stats.rays.surface, without.stats.rays.surface);
+    assert_eq!(with.images, without.images);
+}

@@ -14,7 +14,7 @@ pub struct BenchVariant {
 }
 
 /// Keys of a `--variant` string, with what each takes (shown in errors).
-const KEYS: [(&str, &str); 13] = [
+const KEYS: [(&str, &str); 14] = [
     ("mode", "reference|shared"),
     ("voxel", "grid voxel edge in metres, e.g. 0.5"),
     ("lookup", "nearest|trilinear"),
@@ -34,6 +34,10 @@ const KEYS: [(&str, &str); 13] = [
         "on|off: keep voxels' light bits until something moves",
     ),
     ("pool", "sparse grid: bricks in the pool (0: dense)"),
+    (
+        "map",
+        "surface shadow map texels a side for directional lights (0: rays)",
+    ),
 ];
 
 /// The configurations for `modes`, in that order: each starts from the paper's
@@ -128,6 +132,7 @@ pub fn parse_variant(spec: &str, scene_voxel_size_m: f32) -> anyhow::Result<Benc
             "demand" => s.demand = switch().ok_or_else(bad)?,
             "cache" => s.cache = switch().ok_or_else(bad)?,
             "pool" => s.brick_pool = count().ok_or_else(bad)?,
+            "map" => s.shadow_map_px = count().ok_or_else(bad)?,
             _ => unreachable!("every key of KEYS is matched"),
         }
     }

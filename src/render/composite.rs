@@ -1,6 +1,6 @@
 //! Composite + tone map, all viewers in one dispatch, with `shaders/composite.wgsl`.
 
-use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
+use super::{compute_pass, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the composite stage.
@@ -34,6 +34,23 @@ impl Composite {
                     texture_entry(2),
                     texture_entry(3),
                     texture_entry(4),
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 5,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Depth,
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 6,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                        count: None,
+                    },
+                    storage_entry(7, true),
                 ],
             });
         let module = super::stage_shader(
@@ -61,6 +78,7 @@ impl Composite {
         enc: &mut wgpu::CommandEncoder,
         scene: &wgpu::BindGroup,
         volumes: &ViewerVolumes,
+        maps: &ShadowMaps,
         ts: &Timestamps,
     ) {
         let array_view = |t: &wgpu::Texture| {
@@ -69,10 +87,11 @@ impl Composite {
                 ..Default::default()
             })
         };
-        let (pos, nrm, alb) = (
+        let (pos, nrm, alb, map) = (
             array_view(&volumes.gbuf_position),
             array_view(&volumes.gbuf_normal),
             array_view(&volumes.gbuf_albedo),
+            array_view(&maps.texture),
         );
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("composite"),
@@ -97,6 +116,18 @@ impl Composite {
                 wgpu::BindGroupEntry {
                     binding: 4,
                     resource: wgpu::BindingResource::TextureView(&alb),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: wgpu::BindingResource::TextureView(&map),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 6,
+                    resource: wgpu::BindingResource::Sampler(&maps.sampler),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 7,
+                    resource: maps.info.as_entire_binding(),
                 },
             ],
         });

@@ -14,6 +14,7 @@ mod history_tests;
 mod ray_query;
 mod scene_gpu;
 mod shadow_frustum;
+mod shadow_maps;
 mod shared_grid;
 mod stats;
 mod viewer_volumes;
@@ -101,6 +102,12 @@ pub struct Settings {
     /// A froxel whose brick did not fit in the pool traces its own rays.
     #[serde(default)]
     pub brick_pool: u32,
+    /// Surface shadows of directional lights from a shared shadow map of this many
+    /// texels a side, rendered once for all viewers and only when a light or mover
+    /// changed (beyond the paper; `shared` only). 0: a shadow ray per pixel and light,
+    /// as `reference` always does.
+    #[serde(default)]
+    pub shadow_map_px: u32,
 }
 
 impl Default for Settings {
@@ -119,6 +126,7 @@ impl Default for Settings {
             demand: false,
             cache: false,
             brick_pool: 0,
+            shadow_map_px: 0,
         }
     }
 }
@@ -193,10 +201,12 @@ pub(crate) enum Stage {
     VolumeIntegration = 4,
     Composite = 5,
     GridRequests = 6,
+    ShadowMaps = 7,
 }
 
-const STAGES: [(Stage, &str); 7] = [
+const STAGES: [(Stage, &str); 8] = [
     (Stage::GBuffer, "gbuffer"),
+    (Stage::ShadowMaps, "shadow_maps"),
     (Stage::GridRequests, "grid_requests"),
     (Stage::SharedGrid, "shared_grid"),
     (Stage::ShadowFrustum, "shadow_frustum"),
@@ -281,6 +291,7 @@ pub struct Renderer {
     gbuffer: gbuffer::GBuffer,
     frustum: shadow_frustum::ShadowFrustum,
     cull: froxel_cull::FroxelCull,
+    shadow_maps: shadow_maps::ShadowMaps,
     lighting: froxel_lighting::FroxelLighting,
     integration: volume_integration::VolumeIntegration,
     composite: composite::Composite,
@@ -358,6 +369,16 @@ impl Renderer {
             gbuffer: gbuffer::GBuffer::new(&ctx),
             frustum: shadow_frustum::ShadowFrustum::new(&ctx, &scene_gpu.layout),
             cull: froxel_cull::FroxelCull::new(&ctx, &scene_gpu.layout),
+            shadow_maps: shadow_maps::ShadowMaps::new(
+                &ctx,
+                &scene,
+                shadow_maps::caster_bounds(&scene).unwrap_or((glam::Vec3::ZERO, glam::Vec3::ONE)),
+                if settings.mode == Mode::Shared {
+                    settings.shadow_map_px
+                } else {
+                    0
+                },
+            ),
             lighting: froxel_lighting::FroxelLighting::new(&ctx, &scene_gpu.layout),
             integration: volume_integration::VolumeIntegration::new(&ctx, &scene_gpu.layout),
             composite: composite::Composite::new(&ctx, &scene_gpu.layout),
@@ -641,6 +662,16 @@ impl Renderer {
             ),
             &self.timestamps,
         );
+        if self.shadow_maps.add_passes(
+            &ctx,
+            &mut enc,
+            &self.scene,
+            &self.scene_gpu,
+            time_s,
+            &self.timestamps,
+        ) {
+            dispatches.push(("shadow_maps", [self.shadow_maps.px, self.shadow_maps.px, 1]));
+        }
         // Passes with no work are skipped: no media means no froxel stages at all, and
         // no lights means no shadow rays.
         if has_media {
@@ -704,8 +735,14 @@ impl Renderer {
                 );
             }
         }
-        self.composite
-            .add_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
+        self.composite.add_pass(
+            &ctx,
+            &mut enc,
+            scene_bg,
+            vol,
+            &self.shadow_maps,
+            &self.timestamps,
+        );
         dispatches.push(("composite", composite::Composite::workgroups(vol)));
 
         // One readback of images, counters and timestamps.
@@ -781,6 +818,7 @@ impl Renderer {
             triangles: self.triangles,
             counters: &counters,
             grid: self.grid.as_ref(),
+            shadow_map_bytes: self.shadow_maps.bytes(),
             scene_memory: &self.scene_gpu.memory,
             volumes: vol,
             stage_ms,

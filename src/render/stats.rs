@@ -102,6 +102,8 @@ pub(super) struct StatsInput<'a> {
     pub triangles: usize,
     pub counters: &'a [u32],
     pub grid: Option<&'a SharedShadowGrid>,
+    /// Bytes of the surface shadow maps (0 without).
+    pub shadow_map_bytes: u64,
     pub scene_memory: &'a [(&'static str, u64)],
     pub volumes: &'a ViewerVolumes,
     pub stage_ms: Vec<StageTiming>,
@@ -129,6 +131,9 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         .collect();
     if let Some(g) = i.grid {
         shared.push(("shared_grid".into(), g.bytes()));
+    }
+    if i.shadow_map_bytes > 0 {
+        shared.push(("shadow_maps".into(), i.shadow_map_bytes));
     }
     let per_viewer: Vec<(String, u64)> = i
         .volumes
