@@ -51,6 +51,16 @@ impl Composite {
                         count: None,
                     },
                     storage_entry(7, true),
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 8,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Depth,
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
                 ],
             });
         let module = super::stage_shader(
@@ -87,12 +97,12 @@ impl Composite {
                 ..Default::default()
             })
         };
-        let (pos, nrm, alb, map) = (
+        let (pos, nrm, alb) = (
             array_view(&volumes.gbuf_position),
             array_view(&volumes.gbuf_normal),
             array_view(&volumes.gbuf_albedo),
-            array_view(&maps.texture),
         );
+        let (map, mover_map) = maps.views();
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("composite"),
             layout: &self.layout,
@@ -128,6 +138,10 @@ impl Composite {
                 wgpu::BindGroupEntry {
                     binding: 7,
                     resource: maps.info.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 8,
+                    resource: wgpu::BindingResource::TextureView(&mover_map),
                 },
             ],
         });

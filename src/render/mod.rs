@@ -372,7 +372,6 @@ impl Renderer {
             shadow_maps: shadow_maps::ShadowMaps::new(
                 &ctx,
                 &scene,
-                shadow_maps::caster_bounds(&scene).unwrap_or((glam::Vec3::ZERO, glam::Vec3::ONE)),
                 if settings.mode == Mode::Shared {
                     settings.shadow_map_px
                 } else {
@@ -670,7 +669,7 @@ impl Renderer {
             time_s,
             &self.timestamps,
         ) {
-            dispatches.push(("shadow_maps", [self.shadow_maps.px, self.shadow_maps.px, 1]));
+            dispatches.push(("shadow_maps", [0, 0, 0]));
         }
         // Passes with no work are skipped: no media means no froxel stages at all, and
         // no lights means no shadow rays.

@@ -1,47 +1,67 @@
 //! Surface shadow maps for directional lights (beyond paper 000; `shared` mode's
 //! `shadow_map_px`), with `shaders/shadow_map.wgsl`. Like the shared grid, this is
-//! view-independent work done once per frame for every viewer: one orthographic depth
-//! map per directional light over the scene's bounds, re-rendered only when a light or
-//! a mover changed. The composite then looks surface shadows up (2×2 PCF) instead of
-//! tracing a ray per pixel and light. Point and spot lights keep their rays.
+//! view-independent work done once for every viewer (DESIGN.md §1's light-space stage):
+//! per directional light, an orthographic depth map of the static scene, rendered again
+//! only when the light turns, and a small map of the movers alone over the sphere they
+//! turn in, rendered every frame they move. The composite looks surface shadows up in
+//! both (2×2 PCF) instead of tracing a ray per pixel and light. Point and spot lights
+//! keep their rays.
 
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
 use crate::gpu::GpuContext;
-use crate::scene::Scene;
+use crate::scene::{Light, Scene};
 use glam::{Mat4, Vec3};
 
 const VIEW_STRIDE: u64 = 256;
 
-/// Per light (indexed like the scene's lights), as the composite reads it.
+/// Texels a side of each light's movers map.
+const MOVER_PX: u32 = 1024;
+
+/// One orthographic map as the composite reads it.
 #[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub(crate) struct ShadowMapGpu {
+#[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct MapGpu {
     view_proj: [[f32; 4]; 4],
-    /// Layer of the depth array, or -1: trace a ray.
+    /// Layer in its depth array, or −1: no map.
     layer: i32,
-    /// World size of one texel, metres (sets the lookup's normal offset).
+    /// World size of one texel, metres (scales the lookup's normal offset).
     texel_m: f32,
-    /// Depth bias in the map's [0, 1] depth units.
-    depth_bias: f32,
-    _pad: f32,
+    _pad: [f32; 2],
 }
 
-/// The depth maps, their pipeline and what the composite binds.
-pub(crate) struct ShadowMaps {
-    pub(crate) px: u32,
-    pub(crate) texture: wgpu::Texture,
-    pub(crate) sampler: wgpu::Sampler,
-    /// One [`ShadowMapGpu`] per scene light.
-    pub(crate) info: wgpu::Buffer,
-    /// (scene light, its view-projection) per layer.
-    layers: Vec<(usize, Mat4)>,
-    info_cpu: Vec<ShadowMapGpu>,
+/// Per scene light: its static map and its movers map.
+#[repr(C)]
+#[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct LightMapsGpu {
+    scene: MapGpu,
+    movers: MapGpu,
+}
+
+/// A depth-array texture and the bounds its layers cover.
+struct MapSet {
+    px: u32,
+    texture: wgpu::Texture,
     bounds: (Vec3, Vec3),
+    /// Index range drawn into it.
+    indices: std::ops::Range<u32>,
+    /// Scene time its layers were rendered for (`None`: never).
+    rendered_for: Option<Vec<[f32; 3]>>,
+}
+
+/// The maps, their pipeline and what the composite binds.
+pub(crate) struct ShadowMaps {
+    scene_maps: MapSet,
+    mover_maps: MapSet,
+    pub(crate) sampler: wgpu::Sampler,
+    /// One [`LightMapsGpu`] per scene light.
+    pub(crate) info: wgpu::Buffer,
+    info_cpu: Vec<LightMapsGpu>,
+    /// Scene lights with maps (directional ones), in layer order.
+    lights: Vec<usize>,
+    movers_time: Option<f32>,
     pipeline: Option<wgpu::RenderPipeline>,
     layout: wgpu::BindGroupLayout,
     uniforms: wgpu::Buffer,
-    /// Scene state the maps were rendered for: (light positions/directions, mover time).
-    rendered_for: Option<(Vec<[f32; 3]>, f32)>,
 }
 
 /// Orthographic light view-projection over the box (lo, hi) looking along `dir`: x, y
@@ -73,15 +93,20 @@ fn light_view_proj(dir: Vec3, lo: Vec3, hi: Vec3) -> Mat4 {
     )
 }
 
-/// Bounds of every triangle the maps must hold: the static mesh and each mover's
-/// sphere around its pivot (it turns). `None` for a scene without geometry.
-pub(crate) fn caster_bounds(scene: &Scene) -> Option<(Vec3, Vec3)> {
-    let mut lo = Vec3::splat(f32::INFINITY);
-    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+fn union(a: Option<(Vec3, Vec3)>, lo: Vec3, hi: Vec3) -> Option<(Vec3, Vec3)> {
+    Some(match a {
+        Some((a, b)) => (a.min(lo), b.max(hi)),
+        None => (lo, hi),
+    })
+}
+
+/// Bounds of the static mesh, and of the spheres the movers turn in.
+fn bounds(scene: &Scene) -> (Option<(Vec3, Vec3)>, Option<(Vec3, Vec3)>) {
+    let mut stat = None;
     for p in &scene.mesh.positions {
-        lo = lo.min(*p);
-        hi = hi.max(*p);
+        stat = union(stat, *p, *p);
     }
+    let mut movers = None;
     for m in &scene.movers {
         let r = m
             .mesh
@@ -89,43 +114,119 @@ pub(crate) fn caster_bounds(scene: &Scene) -> Option<(Vec3, Vec3)> {
             .iter()
             .map(|p| p.distance(m.pivot))
             .fold(0.0f32, f32::max);
-        lo = lo.min(m.pivot - Vec3::splat(r));
-        hi = hi.max(m.pivot + Vec3::splat(r));
+        movers = union(movers, m.pivot - Vec3::splat(r), m.pivot + Vec3::splat(r));
     }
-    (lo.cmple(hi).all()).then_some((lo, hi))
+    (stat, movers)
+}
+
+fn depth_array(ctx: &GpuContext, label: &str, px: u32, layers: usize) -> wgpu::Texture {
+    ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: px,
+            height: px,
+            depth_or_array_layers: layers.max(1) as u32,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Depth32Float,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        view_formats: &[],
+    })
+}
+
+impl MapSet {
+    fn new(
+        ctx: &GpuContext,
+        label: &str,
+        px: u32,
+        layers: usize,
+        bounds: Option<(Vec3, Vec3)>,
+        indices: std::ops::Range<u32>,
+    ) -> MapSet {
+        let px = if bounds.is_some() && layers > 0 {
+            px
+        } else {
+            1
+        };
+        MapSet {
+            px,
+            texture: depth_array(ctx, label, px, layers),
+            bounds: bounds.unwrap_or((Vec3::ZERO, Vec3::ONE)),
+            indices,
+            rendered_for: None,
+        }
+    }
+
+    fn used(&self) -> bool {
+        self.px > 1
+    }
+
+    fn bytes(&self, layers: usize) -> u64 {
+        if self.used() {
+            self.px as u64 * self.px as u64 * 4 * layers as u64
+        } else {
+            0
+        }
+    }
+
+    fn map_gpu(&self, dir: Vec3, layer: usize) -> MapGpu {
+        if !self.used() {
+            return MapGpu {
+                layer: -1,
+                ..Default::default()
+            };
+        }
+        let (lo, hi) = self.bounds;
+        MapGpu {
+            view_proj: light_view_proj(dir, lo, hi).to_cols_array_2d(),
+            layer: layer as i32,
+            texel_m: (hi - lo).max_element() / self.px as f32,
+            _pad: [0.0; 2],
+        }
+    }
+
+    pub(crate) fn view(&self) -> wgpu::TextureView {
+        self.texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        })
+    }
 }
 
 impl ShadowMaps {
     /// Maps of `px`² for the scene's directional lights (none when `px` is 0 or the scene
-    /// has no directional light: a 1×1 stand-in keeps the composite's bindings valid).
-    pub(crate) fn new(ctx: &GpuContext, scene: &Scene, bounds: (Vec3, Vec3), px: u32) -> Self {
-        let lights = scene.lights_at(0.0);
-        let (lo, hi) = bounds;
-        let layers: Vec<(usize, Mat4)> = if px == 0 {
+    /// has no directional light: 1×1 stand-ins keep the composite's bindings valid).
+    pub(crate) fn new(ctx: &GpuContext, scene: &Scene, px: u32) -> Self {
+        let lights: Vec<usize> = if px == 0 {
             Vec::new()
         } else {
-            lights
+            scene
+                .lights
                 .iter()
                 .enumerate()
                 .filter(|(_, l)| l.kind == 0)
-                .map(|(i, l)| (i, light_view_proj(l.direction, lo, hi)))
+                .map(|(i, _)| i)
                 .collect()
         };
-        let size = if layers.is_empty() { 1 } else { px };
-        let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("shadow maps"),
-            size: wgpu::Extent3d {
-                width: size,
-                height: size,
-                depth_or_array_layers: layers.len().max(1) as u32,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Depth32Float,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        });
+        let (static_bounds, mover_bounds) = bounds(scene);
+        let static_indices = scene.mesh.indices.len() as u32 * 3;
+        let mover_indices = scene
+            .movers
+            .iter()
+            .map(|m| m.mesh.indices.len() as u32 * 3)
+            .sum::<u32>();
+        let n = lights.len();
+        let scene_maps = MapSet::new(ctx, "shadow maps", px, n, static_bounds, 0..static_indices);
+        let mover_maps = MapSet::new(
+            ctx,
+            "mover shadow maps",
+            MOVER_PX,
+            n,
+            mover_bounds,
+            static_indices..static_indices + mover_indices,
+        );
         let sampler = ctx.device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("shadow map compare"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -133,31 +234,28 @@ impl ShadowMaps {
             compare: Some(wgpu::CompareFunction::LessEqual),
             ..Default::default()
         });
-        let extent = (hi - lo).max_element().max(1e-3);
-        let mut info = vec![
-            ShadowMapGpu {
-                view_proj: Mat4::IDENTITY.to_cols_array_2d(),
-                layer: -1,
-                texel_m: 0.0,
-                depth_bias: 0.0,
-                _pad: 0.0,
+        let mut info_cpu = vec![
+            LightMapsGpu {
+                scene: MapGpu {
+                    layer: -1,
+                    ..Default::default()
+                },
+                movers: MapGpu {
+                    layer: -1,
+                    ..Default::default()
+                },
             };
-            lights.len().max(1)
+            scene.lights.len().max(1)
         ];
-        for (layer, (li, vp)) in layers.iter().enumerate() {
-            // Depth spans the box's extent along the light plus 2 m: ~2 texels of bias.
-            let range = (hi - lo).length() + 2.0;
-            let texel_m = 1.5 * extent / px as f32;
-            info[*li] = ShadowMapGpu {
-                view_proj: vp.to_cols_array_2d(),
-                layer: layer as i32,
-                texel_m,
-                depth_bias: texel_m / range,
-                _pad: 0.0,
+        let lights_now = scene.lights_at(0.0);
+        for (layer, li) in lights.iter().enumerate() {
+            let dir = lights_now[*li].direction;
+            info_cpu[*li] = LightMapsGpu {
+                scene: scene_maps.map_gpu(dir, layer),
+                movers: mover_maps.map_gpu(dir, layer),
             };
         }
-        let info_cpu = info.clone();
-        let info = ctx.storage_init("shadow map info", &info, wgpu::BufferUsages::empty());
+        let info = ctx.storage_init("shadow map info", &info_cpu, wgpu::BufferUsages::empty());
         let layout = ctx
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -173,81 +271,84 @@ impl ShadowMaps {
                     count: None,
                 }],
             });
-        let pipeline = (!layers.is_empty()).then(|| {
-            let module = ctx.shader(
-                "shadow_map",
-                &[include_str!("../../shaders/shadow_map.wgsl")],
-            );
-            let pl = ctx
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("shadow map"),
-                    bind_group_layouts: &[Some(&layout)],
-                    immediate_size: 0,
-                });
-            ctx.device
-                .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                    label: Some("shadow map"),
-                    layout: Some(&pl),
-                    vertex: wgpu::VertexState {
-                        module: &module,
-                        entry_point: Some("vs_main"),
-                        compilation_options: Default::default(),
-                        buffers: &[Some(wgpu::VertexBufferLayout {
-                            array_stride: 16,
-                            step_mode: wgpu::VertexStepMode::Vertex,
-                            attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-                        })],
-                    },
-                    primitive: wgpu::PrimitiveState {
-                        cull_mode: None,
-                        ..Default::default()
-                    },
-                    depth_stencil: Some(wgpu::DepthStencilState {
-                        format: wgpu::TextureFormat::Depth32Float,
-                        depth_write_enabled: Some(true),
-                        depth_compare: Some(wgpu::CompareFunction::Less),
-                        stencil: Default::default(),
-                        bias: Default::default(),
-                    }),
-                    multisample: Default::default(),
-                    fragment: None,
-                    multiview_mask: None,
-                    cache: None,
-                })
-        });
+        let pipeline = (!lights.is_empty()).then(|| Self::pipeline(ctx, &layout));
         let uniforms = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow map views"),
-            size: VIEW_STRIDE * layers.len().max(1) as u64,
+            size: VIEW_STRIDE * 2 * n.max(1) as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         ShadowMaps {
-            px: size,
-            texture,
+            scene_maps,
+            mover_maps,
             sampler,
             info,
-            layers,
             info_cpu,
-            bounds,
+            lights,
+            movers_time: None,
             pipeline,
             layout,
             uniforms,
-            rendered_for: None,
         }
+    }
+
+    fn pipeline(ctx: &GpuContext, layout: &wgpu::BindGroupLayout) -> wgpu::RenderPipeline {
+        let module = ctx.shader(
+            "shadow_map",
+            &[include_str!("../../shaders/shadow_map.wgsl")],
+        );
+        let pl = ctx
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("shadow map"),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
+        ctx.device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("shadow map"),
+                layout: Some(&pl),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: 16,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                    })],
+                },
+                primitive: wgpu::PrimitiveState {
+                    cull_mode: None,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: wgpu::TextureFormat::Depth32Float,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: None,
+                multiview_mask: None,
+                cache: None,
+            })
+    }
+
+    /// Views of the static and the movers' depth arrays (for the composite's bindings).
+    pub(crate) fn views(&self) -> (wgpu::TextureView, wgpu::TextureView) {
+        (self.scene_maps.view(), self.mover_maps.view())
     }
 
     /// Bytes of the depth maps.
     pub(crate) fn bytes(&self) -> u64 {
-        if !self.layers.is_empty() {
-            self.px as u64 * self.px as u64 * 4 * self.layers.len() as u64
-        } else {
-            0
-        }
+        let n = self.lights.len();
+        self.scene_maps.bytes(n) + self.mover_maps.bytes(n)
     }
 
-    /// Re-renders the maps if a light or a mover changed since they were last rendered;
-    /// returns whether it recorded anything.
+    /// Re-renders the static maps if a directional light turned, and the movers' maps if
+    /// the movers moved; returns whether it recorded anything.
     pub(crate) fn add_passes(
         &mut self,
         ctx: &GpuContext,
@@ -260,28 +361,41 @@ impl ShadowMaps {
         let Some(pipeline) = &self.pipeline else {
             return false;
         };
-        let lights = scene.lights_at(time_s);
-        let key = (
-            self.layers
-                .iter()
-                .map(|(li, _)| lights[*li].direction.to_array())
-                .collect::<Vec<_>>(),
-            if scene.movers.is_empty() { 0.0 } else { time_s },
-        );
-        if self.rendered_for.as_ref() == Some(&key) {
+        let lights: Vec<Light> = scene.lights_at(time_s);
+        let dirs: Vec<[f32; 3]> = self
+            .lights
+            .iter()
+            .map(|li| lights[*li].direction.to_array())
+            .collect();
+        let redo_scene = self.scene_maps.rendered_for.as_ref() != Some(&dirs);
+        let redo_movers = self.mover_maps.used()
+            && (redo_scene
+                || self.mover_maps.rendered_for.as_ref() != Some(&dirs)
+                || self.movers_time != Some(time_s));
+        if !redo_scene && !redo_movers {
             return false;
         }
-        // A directional light that turned gets a fresh projection.
-        let mut bytes = vec![0u8; VIEW_STRIDE as usize * self.layers.len()];
-        for (layer, (li, vp)) in self.layers.iter_mut().enumerate() {
-            *vp = light_view_proj(lights[*li].direction, self.bounds.0, self.bounds.1);
-            self.info_cpu[*li].view_proj = vp.to_cols_array_2d();
-            let at = layer * VIEW_STRIDE as usize;
-            bytes[at..at + 64].copy_from_slice(bytemuck::cast_slice(&vp.to_cols_array()));
+        // Projections of the current light directions: static maps in the uniforms'
+        // first half, movers' maps in the second.
+        let n = self.lights.len();
+        let mut bytes = vec![0u8; VIEW_STRIDE as usize * 2 * n];
+        for (layer, li) in self.lights.iter().enumerate() {
+            let dir = lights[*li].direction;
+            self.info_cpu[*li] = LightMapsGpu {
+                scene: self.scene_maps.map_gpu(dir, layer),
+                movers: self.mover_maps.map_gpu(dir, layer),
+            };
+            for (half, m) in [self.info_cpu[*li].scene, self.info_cpu[*li].movers]
+                .iter()
+                .enumerate()
+            {
+                let at = (half * n + layer) * VIEW_STRIDE as usize;
+                bytes[at..at + 64].copy_from_slice(bytemuck::cast_slice(&m.view_proj));
+            }
         }
+        ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
         ctx.queue
             .write_buffer(&self.info, 0, bytemuck::cast_slice(&self.info_cpu));
-        ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("shadow map"),
             layout: &self.layout,
@@ -294,9 +408,18 @@ impl ShadowMaps {
                 }),
             }],
         });
-        let n = self.layers.len();
+        let mut passes: Vec<(&MapSet, usize, usize)> = Vec::new();
         for layer in 0..n {
-            let view = self.texture.create_view(&wgpu::TextureViewDescriptor {
+            if redo_scene {
+                passes.push((&self.scene_maps, 0, layer));
+            }
+            if redo_movers {
+                passes.push((&self.mover_maps, 1, layer));
+            }
+        }
+        let last = passes.len() - 1;
+        for (i, (set, half, layer)) in passes.into_iter().enumerate() {
+            let view = set.texture.create_view(&wgpu::TextureViewDescriptor {
                 dimension: Some(wgpu::TextureViewDimension::D2),
                 base_array_layer: layer as u32,
                 array_layer_count: Some(1),
@@ -313,20 +436,27 @@ impl ShadowMaps {
                     }),
                     stencil_ops: None,
                 }),
-                timestamp_writes: ts.render_writes(Stage::ShadowMaps, layer == 0, layer + 1 == n),
+                timestamp_writes: ts.render_writes(Stage::ShadowMaps, i == 0, i == last),
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            if scene_gpu.index_count == 0 {
+            if set.indices.is_empty() {
                 continue;
             }
+            let offset = ((half * n + layer) as u64 * VIEW_STRIDE) as u32;
             pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &bg, &[layer as u32 * VIEW_STRIDE as u32]);
+            pass.set_bind_group(0, &bg, &[offset]);
             pass.set_vertex_buffer(0, scene_gpu.vertices.slice(..));
             pass.set_index_buffer(scene_gpu.indices.slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(0..scene_gpu.index_count, 0, 0..1);
+            pass.draw_indexed(set.indices.clone(), 0, 0..1);
         }
-        self.rendered_for = Some(key);
+        if redo_scene {
+            self.scene_maps.rendered_for = Some(dirs.clone());
+        }
+        if redo_movers {
+            self.mover_maps.rendered_for = Some(dirs);
+            self.movers_time = Some(time_s);
+        }
         true
     }
 }
