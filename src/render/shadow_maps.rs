@@ -41,7 +41,7 @@ struct LightMapsGpu {
 struct MapSet {
     px: u32,
     texture: wgpu::Texture,
-    bounds: (Vec3, Vec3),
+    bounds: Aabb,
     /// Index range drawn into it.
     indices: std::ops::Range<u32>,
     /// Scene time its layers were rendered for (`None`: never).
@@ -93,7 +93,10 @@ fn light_view_proj(dir: Vec3, lo: Vec3, hi: Vec3) -> Mat4 {
     )
 }
 
-fn union(a: Option<(Vec3, Vec3)>, lo: Vec3, hi: Vec3) -> Option<(Vec3, Vec3)> {
+/// An axis-aligned box (min, max).
+type Aabb = (Vec3, Vec3);
+
+fn union(a: Option<Aabb>, lo: Vec3, hi: Vec3) -> Option<Aabb> {
     Some(match a {
         Some((a, b)) => (a.min(lo), b.max(hi)),
         None => (lo, hi),
@@ -101,7 +104,7 @@ fn union(a: Option<(Vec3, Vec3)>, lo: Vec3, hi: Vec3) -> Option<(Vec3, Vec3)> {
 }
 
 /// Bounds of the static mesh, and of the spheres the movers turn in.
-fn bounds(scene: &Scene) -> (Option<(Vec3, Vec3)>, Option<(Vec3, Vec3)>) {
+fn bounds(scene: &Scene) -> (Option<Aabb>, Option<Aabb>) {
     let mut stat = None;
     for p in &scene.mesh.positions {
         stat = union(stat, *p, *p);
@@ -142,7 +145,7 @@ impl MapSet {
         label: &str,
         px: u32,
         layers: usize,
-        bounds: Option<(Vec3, Vec3)>,
+        bounds: Option<Aabb>,
         indices: std::ops::Range<u32>,
     ) -> MapSet {
         let px = if bounds.is_some() && layers > 0 {
