@@ -2,7 +2,8 @@
 // update "is overestimating the voxels required for sampling"): every froxel that will
 // read the shared grid marks the voxels its lookup reads — the nearest voxel, or the 8
 // trilinear neighbours — and only marked voxels are traced. Froxels outside every
-// medium mark nothing. All viewers in one dispatch; z runs over viewers × grid slices.
+// medium, or hidden behind the depth buffer (froxel_cull.wgsl), mark nothing. All viewers
+// in one dispatch; an invocation walks one froxel column (z runs over viewers).
 //
 // Dense grid (`main`): one u32 per voxel. Sparse grid: `mark_bricks` flags the bricks
 // the froxels read, `allocate` gives each flagged brick a pool slot, `mark_voxels`
@@ -59,26 +60,39 @@ fn may_have_media(p: vec3f) -> bool {
     return false;
 }
 
-fn request_froxel(gid: vec3u) {
-    let grid_slices = frame.slices - frame.frustum_slices;
-    let view_index = gid.z / grid_slices;
-    let slice = frame.frustum_slices + gid.z % grid_slices;
-    if view_index < frame.view_count {
-        let v = views[view_index];
-        let hidden = (frame.flags & FLAG_CULL) != 0u
-            && slice > column_limit[view_index * v.froxel_dims.x * v.froxel_dims.y + gid.x + v.froxel_dims.x * gid.y];
-        if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y && !hidden {
-            let p = froxel_sample(v, gid.xy, slice).p;
-            if may_have_media(p) {
-                let g = grid_coord(p);
-                if (frame.flags & FLAG_TRILINEAR) == 0u {
-                    request(vec3i(floor(g + 0.5)));
-                } else {
-                    let base = vec3i(floor(g));
-                    for (var k = 0u; k < 8u; k++) {
-                        request(base + vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u)));
-                    }
-                }
+// The requests of one froxel column (gid.xy) of viewer gid.z: its grid slices, front
+// to back, up to the last one culling keeps. Consecutive slices whose lookups start at
+// the same voxel mark it once (near the eye many slices share a voxel).
+fn request_column(gid: vec3u) {
+    if gid.z >= frame.view_count {
+        return;
+    }
+    let v = views[gid.z];
+    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y {
+        return;
+    }
+    var last = frame.slices - 1u;
+    if (frame.flags & FLAG_CULL) != 0u {
+        last = column_limit[gid.z * v.froxel_dims.x * v.froxel_dims.y + gid.x + v.froxel_dims.x * gid.y];
+    }
+    let trilinear = (frame.flags & FLAG_TRILINEAR) != 0u;
+    var prev = vec3i(-2147483647);
+    for (var slice = frame.frustum_slices; slice <= last; slice++) {
+        let p = froxel_sample(v, gid.xy, slice).p;
+        if !may_have_media(p) {
+            continue;
+        }
+        let g = grid_coord(p);
+        let base = select(vec3i(floor(g + 0.5)), vec3i(floor(g)), trilinear);
+        if all(base == prev) {
+            continue;
+        }
+        prev = base;
+        if !trilinear {
+            request(base);
+        } else {
+            for (var k = 0u; k < 8u; k++) {
+                request(base + vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u)));
             }
         }
     }
@@ -87,19 +101,19 @@ fn request_froxel(gid: vec3u) {
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3u) {
     phase = PHASE_DENSE;
-    request_froxel(gid);
+    request_column(gid);
 }
 
 @compute @workgroup_size(8, 8, 1)
 fn mark_bricks(@builtin(global_invocation_id) gid: vec3u) {
     phase = PHASE_BRICKS;
-    request_froxel(gid);
+    request_column(gid);
 }
 
 @compute @workgroup_size(8, 8, 1)
 fn mark_voxels(@builtin(global_invocation_id) gid: vec3u) {
     phase = PHASE_VOXELS;
-    request_froxel(gid);
+    request_column(gid);
 }
 
 // One invocation per brick (2D dispatch: x + y·64·workgroups_x): a flagged brick takes

@@ -215,14 +215,11 @@ impl SharedShadowGrid {
         ]
     }
 
-    /// Dispatch size of a request pass: froxel tiles × (viewers × grid slices).
+    /// Dispatch size of a request pass: froxel columns × viewers (each invocation walks
+    /// its column's grid slices).
     pub(crate) fn request_workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
         let [x, y] = volumes.layout.froxel_dims;
-        [
-            x.div_ceil(8),
-            y.div_ceil(8),
-            (volumes.slices - volumes.frustum_slices) * volumes.count as u32,
-        ]
+        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
     }
 
     /// Records the froxels' voxel requests (demand-driven update; for a sparse grid also
