@@ -52,19 +52,41 @@ fn sphere_in_view(v: View, c: vec3f, r: f32) -> bool {
         && y - z * v.tan_y <= r * sqrt(1.0 + v.tan_y * v.tan_y);
 }
 
+// The voxels of this workgroup's 64 words that trace this frame, compacted so that every
+// invocation traces from the same list (voxels needed are sparse with the demand-driven
+// update: tracing word by word would leave most SIMD lanes idle). An entry is
+// local word << 2 | voxel in word, with the voxel's stale lights << 8.
+var<workgroup> todo: array<u32, 256>;
+var<workgroup> todo_count: atomic<u32>;
+// Light bits traced this frame, per local word (4 voxels × 8 bits).
+var<workgroup> traced_bits: array<atomic<u32>, 64>;
+
 @compute @workgroup_size(4, 4, 4)
-fn main(@builtin(global_invocation_id) gid: vec3u) {
+fn main(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3u,
+) {
     var rays = 0u;
     var traced = 0u;
     var needed = 0u;
     let dims = frame.grid_dims;
-    if gid.x < frame.grid_words_x && gid.y < dims.y && gid.z < dims.z {
-        let word_index = gid.x + frame.grid_words_x * (gid.y + dims.y * gid.z);
-        let cache = (frame.flags & FLAG_CACHE) != 0u;
+    let in_grid = gid.x < frame.grid_words_x && gid.y < dims.y && gid.z < dims.z;
+    let word_index = gid.x + frame.grid_words_x * (gid.y + dims.y * gid.z);
+    let cache = (frame.flags & FLAG_CACHE) != 0u;
+    var word = 0u;
+    var valid_bits = 0u;
+    var old_valid = 0u;
+    if lid == 0u {
+        atomicStore(&todo_count, 0u);
+    }
+    atomicStore(&traced_bits[lid], 0u);
+    workgroupBarrier();
+    if in_grid {
         // Stale bits are dropped in every word, whether or not it is updated this frame.
         let dirty = frame.dirty_lights & 0xffu;
-        let old_valid = select(0u, valid[word_index], cache);
-        var valid_bits = old_valid & ~(dirty * 0x01010101u);
+        old_valid = select(0u, valid[word_index], cache);
+        valid_bits = old_valid & ~(dirty * 0x01010101u);
         if valid_bits != 0u && all(frame.moved_min <= frame.moved_max) {
             for (var i = 0u; i < 4u && gid.x * 4u + i < dims.x; i++) {
                 let centre = frame.grid_min + (vec3f(f32(gid.x * 4u + i), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
@@ -78,7 +100,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         }
         let may_trace = (frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u);
         let all_lights = (1u << frame.light_count) - 1u;
-        var word = grid[word_index];
+        word = grid[word_index];
         // Trilinear lookups read the 8 voxels around a sample, so a voxel one voxel
         // outside a frustum may be read: widen the test by a voxel diagonal.
         var radius = 0.866 * frame.voxel_size;
@@ -112,27 +134,43 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
             if stale == 0u {
                 continue; // every light bit is cached and current
             }
-            let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
-            var mask = (word >> shift) & current;
-            for (var li = 0u; li < frame.light_count; li++) {
-                if ((stale >> li) & 1u) == 0u {
-                    continue;
-                }
-                let l = lights[li];
-                if all(light_radiance(l, centre) == vec3f(0.0)) {
-                    continue; // outside a spot cone: no ray needed
-                }
-                rays += 1u;
-                if light_visible(l, centre) {
-                    mask |= 1u << li;
-                }
-            }
-            word = (word & ~(0xffu << shift)) | (mask << shift);
+            // Keep the current bits; the stale ones are traced below.
+            word = (word & ~(0xffu << shift)) | (((word >> shift) & current) << shift);
             valid_bits |= stale << shift;
             traced |= 1u << i;
+            todo[atomicAdd(&todo_count, 1u)] = (lid << 2u) | i | (stale << 8u);
         }
+    }
+    workgroupBarrier();
+    let n = atomicLoad(&todo_count);
+    for (var k = lid; k < n; k += 64u) {
+        let e = todo[k];
+        let w = e >> 2u & 63u;
+        let i = e & 3u;
+        let stale = (e >> 8u) & 0xffu;
+        // Local word w of this workgroup: (w % 4, w / 4 % 4, w / 16) in words.
+        let q = vec3u((wg.x * 4u + w % 4u) * 4u + i, wg.y * 4u + (w / 4u) % 4u, wg.z * 4u + w / 16u);
+        let centre = frame.grid_min + (vec3f(q) + 0.5) * frame.voxel_size;
+        var mask = 0u;
+        for (var li = 0u; li < frame.light_count; li++) {
+            if ((stale >> li) & 1u) == 0u {
+                continue;
+            }
+            let l = lights[li];
+            if all(light_radiance(l, centre) == vec3f(0.0)) {
+                continue; // outside a spot cone: no ray needed
+            }
+            rays += 1u;
+            if light_visible(l, centre) {
+                mask |= 1u << li;
+            }
+        }
+        atomicOr(&traced_bits[w], mask << (8u * i));
+    }
+    workgroupBarrier();
+    if in_grid {
         if traced != 0u {
-            grid[word_index] = word;
+            grid[word_index] = word | atomicLoad(&traced_bits[lid]);
             atomicOr(&touched[word_index / 8u], traced << (4u * (word_index % 8u)));
         }
         if cache && valid_bits != old_valid {
