@@ -37,12 +37,16 @@ render: deps-runtime build
 # Flags for every run, e.g. BENCH_ARGS="--frames 3 --width 640 --height 360".
 BENCH_ARGS ?=
 FOGCAST_DEV := ./target/debug/fogcast
+# `shared` runs with its defaults (demand-driven grid, shared surface shadow maps); `paper`
+# is paper 000's method as published (frustum-gated grid, surface shadow rays) and
+# `gated` the frustum-gated grid with the maps (same picture as `shared`).
+PAPER := --variant 'paper:demand=off,map=0'
 
 bench: deps-runtime
 	$(CARGO) build
-	$(FOGCAST_DEV) bench --scene colonnade --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --variant 'demand:demand=on' --variant 'demand+cache:demand=on,cache=on' --overlap 10,25,50,75,100 $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene street $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'gated:demand=off' --variant 'cache:cache=on' --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --overlap 10,25,50,75,100 $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) --variant 'gated:demand=off' $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene street $(PAPER) $(BENCH_ARGS)
 
 test: deps
 	$(CARGO) test -- --test-threads=1

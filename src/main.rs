@@ -106,8 +106,9 @@ struct SettingsArgs {
     /// Curvature of the exponential depth-slice distribution (larger: more slices near the eye).
     #[arg(long, default_value_t = Settings::default().depth_curve)]
     depth_curve: f32,
-    /// Demand-driven grid update: trace only the voxels some froxel reads.
-    #[arg(long)]
+    /// Demand-driven grid update: trace only the voxels some visible froxel reads
+    /// (`--demand false`: the paper's frustum-gated update).
+    #[arg(long, default_value_t = Settings::default().demand, action = clap::ArgAction::Set)]
     demand: bool,
     /// Temporal shadow caching: keep voxels' light bits until the light moves.
     #[arg(long)]

@@ -20,6 +20,8 @@ fn settings(demand: bool, cache: bool) -> Settings {
         trilinear: true,
         demand,
         cache,
+        // Surface shadows by rays unless a test asks for the map.
+        shadow_map_px: 0,
         ..Settings::default()
     }
 }

@@ -60,9 +60,17 @@ fn mode_name(mode: Mode) -> &'static str {
 }
 
 fn base_settings(mode: Mode, scene_voxel_size_m: f32) -> Settings {
+    let shared = mode == Mode::Shared;
     Settings {
         mode,
         voxel_size_m: scene_voxel_size_m,
+        // `reference` is the paper's baseline: no option of `shared` applies to it.
+        demand: shared && Settings::default().demand,
+        shadow_map_px: if shared {
+            Settings::default().shadow_map_px
+        } else {
+            0
+        },
         ..Settings::default()
     }
 }

@@ -89,7 +89,8 @@ pub struct Settings {
     /// default 4 reaches 2 m there and is measured in `docs/accuracy.md`.
     pub depth_curve: f32,
     /// Demand-driven grid update (beyond the paper): trace only the voxels that some
-    /// froxel's lookup will read, instead of every voxel inside some frustum.
+    /// froxel's lookup will read, instead of every voxel inside some frustum; froxels
+    /// hidden behind the depth buffer are neither lit nor read. On by default.
     #[serde(default)]
     pub demand: bool,
     /// Temporal shadow caching (beyond the paper): a voxel's light bit stays valid
@@ -104,8 +105,8 @@ pub struct Settings {
     pub brick_pool: u32,
     /// Surface shadows of directional lights from a shared shadow map of this many
     /// texels a side, rendered once for all viewers and only when a light or mover
-    /// changed (beyond the paper; `shared` only). 0: a shadow ray per pixel and light,
-    /// as `reference` always does.
+    /// changed (beyond the paper; `shared` only; default 4096). 0: a shadow ray per pixel
+    /// and light, as `reference` always does.
     #[serde(default)]
     pub shadow_map_px: u32,
 }
@@ -123,10 +124,12 @@ impl Default for Settings {
             trilinear: true,
             temporal: false,
             depth_curve: 4.0,
-            demand: false,
+            // Beyond the paper, on where `fogcast bench` shows they win (docs/performance.md):
+            // the demand-driven grid and shared surface shadow maps.
+            demand: true,
             cache: false,
             brick_pool: 0,
-            shadow_map_px: 0,
+            shadow_map_px: 4096,
         }
     }
 }
@@ -163,6 +166,11 @@ impl Settings {
             self.brick_pool <= 1 << 20,
             "brick pool {}: at most 1048576 bricks",
             self.brick_pool
+        );
+        anyhow::ensure!(
+            self.shadow_map_px == 0 || (64..=8192).contains(&self.shadow_map_px),
+            "shadow map {} texels a side: must be 0 (rays) or 64..=8192",
+            self.shadow_map_px
         );
         anyhow::ensure!(
             !(self.cache && self.brick_pool > 0),
@@ -534,7 +542,8 @@ impl Renderer {
         if s.cache {
             flags |= FLAG_CACHE;
         }
-        if s.culls_hidden_froxels() {
+        // Only where the culling passes run: a grid exists (media and lights).
+        if s.culls_hidden_froxels() && self.grid.is_some() && !scene.lights.is_empty() {
             flags |= FLAG_CULL;
         }
         // Animated lights: upload the lights at this time, marking the ones that changed.
