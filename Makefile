@@ -32,21 +32,22 @@ render: deps-runtime build
 # The default scaling sweep of docs/performance.md: 1-16 viewers along each scene's camera
 # path, reference vs shared on the same frames, at 320x180 per viewer; colonnade also with
 # 0.5 m and 0.125 m grids and the fixed-overlap scenario (paper Figure 12). Reports and
-# plots go to out/bench/<scene>/. 10-11 minutes on 2 cores with lavapipe. The dev
+# plots go to out/bench/<scene>/. About 15 minutes on 2 cores with lavapipe. The dev
 # profile (opt-level 2, the one `make test` builds) is enough: the GPU work runs in Mesa.
 # Flags for every run, e.g. BENCH_ARGS="--frames 3 --width 640 --height 360".
 BENCH_ARGS ?=
 FOGCAST_DEV := ./target/debug/fogcast
-# `shared` runs with its defaults (demand-driven grid, shared surface shadow maps); `paper`
-# is paper 000's method as published (frustum-gated grid, surface shadow rays) and
-# `gated` the frustum-gated grid with the maps (same picture as `shared`).
-PAPER := --variant 'paper:demand=off,map=0'
+# `shared` runs with its defaults (demand-driven grid, temporal caching, shared surface
+# shadow maps); `paper` is paper 000's method as published (frustum-gated grid traced
+# every frame, surface shadow rays); `gated` is the paper's grid update with the maps
+# (the same picture as `shared`) and `demand` adds the demand-driven update to it.
+PAPER := --variant 'paper:demand=off,cache=off,map=0' --variant 'gated:demand=off,cache=off' --variant 'demand:cache=off'
 
 bench: deps-runtime
 	$(CARGO) build
-	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'gated:demand=off' --variant 'cache:cache=on' --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --overlap 10,25,50,75,100 $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) --variant 'gated:demand=off' $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene street $(PAPER) $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --overlap 10,25,50,75,100 $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene street --variant 'paper:demand=off,cache=off,map=0' $(BENCH_ARGS)
 
 test: deps
 	$(CARGO) test -- --test-threads=1

@@ -168,7 +168,7 @@ fn variant_name(s: &Settings) -> String {
     let name = match s.mode {
         Mode::Reference => "reference".into(),
         Mode::Shared => format!(
-            "shared {}m {}{}{}{}{}",
+            "shared {}m {}{}{}{}{}{}",
             s.voxel_size_m,
             if s.trilinear { "trilinear" } else { "nearest" },
             if s.parity { " parity" } else { "" },
@@ -179,6 +179,7 @@ fn variant_name(s: &Settings) -> String {
             },
             if s.demand { " demand" } else { "" },
             if s.cache { " cache" } else { "" },
+            if s.shadow_map_px > 0 { " map" } else { "" },
         ),
     };
     name + &curve
@@ -218,8 +219,12 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
         bvh,
         cfg: cfg.clone(),
     };
+    // The sweep runs the paper's method as published; fogcast's options follow it.
     let base = Settings {
         voxel_size_m: scene.render.voxel_size_m,
+        demand: false,
+        cache: false,
+        shadow_map_px: 0,
         ..Settings::default()
     };
     progress("GPU without media");
@@ -256,12 +261,17 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
             }
         }
     }
-    // fogcast's grid options beyond the paper, at the default voxel size.
-    for (demand, cache) in [(true, false), (true, true)] {
+    // fogcast's options beyond the paper, at the default voxel size: the demand-driven
+    // grid, then with the shared surface shadow maps, then cached (`shared`'s defaults).
+    let maps = Settings::default().shadow_map_px;
+    for (demand, cache, shadow_map_px) in
+        [(true, false, 0), (true, false, maps), (true, true, maps)]
+    {
         variants.push(Settings {
             mode: Mode::Shared,
             demand,
             cache,
+            shadow_map_px,
             ..base
         });
     }

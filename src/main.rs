@@ -110,8 +110,9 @@ struct SettingsArgs {
     /// (`--demand false`: the paper's frustum-gated update).
     #[arg(long, default_value_t = Settings::default().demand, action = clap::ArgAction::Set)]
     demand: bool,
-    /// Temporal shadow caching: keep voxels' light bits until the light moves.
-    #[arg(long)]
+    /// Temporal shadow caching: keep voxels' light bits until the light or an occluder
+    /// moves (`--cache false`: re-trace every frame, as the paper does).
+    #[arg(long, default_value_t = Settings::default().cache, action = clap::ArgAction::Set)]
     cache: bool,
     /// Sparse grid: bricks of 8³ voxels allocated where froxels read, from a pool of
     /// this many bricks (0: dense grid over the whole media box). Implies --demand.

@@ -66,6 +66,7 @@ fn base_settings(mode: Mode, scene_voxel_size_m: f32) -> Settings {
         voxel_size_m: scene_voxel_size_m,
         // `reference` is the paper's baseline: no option of `shared` applies to it.
         demand: shared && Settings::default().demand,
+        cache: shared && Settings::default().cache,
         shadow_map_px: if shared {
             Settings::default().shadow_map_px
         } else {

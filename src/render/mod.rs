@@ -94,7 +94,9 @@ pub struct Settings {
     #[serde(default)]
     pub demand: bool,
     /// Temporal shadow caching (beyond the paper): a voxel's light bit stays valid
-    /// until that light changes, so a static scene traces each voxel once.
+    /// until that light changes or a mover's swept bounds cross its shadow ray, so a
+    /// static scene traces each voxel once. On by default; no effect on a sparse grid
+    /// (its bricks are allocated afresh every frame).
     #[serde(default)]
     pub cache: bool,
     /// Sparse grid (paper 000 §5.1, beyond its implementation): bricks of 8³ voxels
@@ -125,9 +127,9 @@ impl Default for Settings {
             temporal: false,
             depth_curve: 4.0,
             // Beyond the paper, on where `fogcast bench` shows they win (docs/performance.md):
-            // the demand-driven grid and shared surface shadow maps.
+            // the demand-driven grid, temporal caching and shared surface shadow maps.
             demand: true,
-            cache: false,
+            cache: true,
             brick_pool: 0,
             shadow_map_px: 4096,
         }
@@ -171,10 +173,6 @@ impl Settings {
             self.shadow_map_px == 0 || (64..=8192).contains(&self.shadow_map_px),
             "shadow map {} texels a side: must be 0 (rays) or 64..=8192",
             self.shadow_map_px
-        );
-        anyhow::ensure!(
-            !(self.cache && self.brick_pool > 0),
-            "temporal caching keeps bits in a dense grid: use either cache or a brick pool (sparse), not both"
         );
         anyhow::ensure!(
             self.depth_curve.is_finite() && (0.01..=20.0).contains(&self.depth_curve),
@@ -351,7 +349,7 @@ impl Renderer {
                     settings.voxel_size_m,
                     shared_grid::UpdatePolicy {
                         demand: settings.demand || settings.brick_pool > 0,
-                        cache: settings.cache,
+                        cache: settings.cache && settings.brick_pool == 0,
                         brick_pool: settings.brick_pool,
                     },
                 )?)
@@ -539,7 +537,7 @@ impl Renderer {
         if s.brick_pool > 0 {
             flags |= FLAG_SPARSE;
         }
-        if s.cache {
+        if s.cache && s.brick_pool == 0 {
             flags |= FLAG_CACHE;
         }
         // Only where the culling passes run: a grid exists (media and lights).
