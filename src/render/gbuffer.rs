@@ -28,6 +28,40 @@ impl RasterView {
     }
 }
 
+/// Depth32Float, write on, nearer wins: the depth state of every raster pass.
+pub(crate) fn depth_test() -> wgpu::DepthStencilState {
+    wgpu::DepthStencilState {
+        format: wgpu::TextureFormat::Depth32Float,
+        depth_write_enabled: Some(true),
+        depth_compare: Some(wgpu::CompareFunction::Less),
+        stencil: Default::default(),
+        bias: Default::default(),
+    }
+}
+
+/// A layout with one uniform buffer at binding 0, read at a dynamic offset per pass.
+pub(crate) fn dynamic_uniform_layout(
+    ctx: &GpuContext,
+    label: &str,
+    visibility: wgpu::ShaderStages,
+    size: u64,
+) -> wgpu::BindGroupLayout {
+    ctx.device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some(label),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(size),
+                },
+                count: None,
+            }],
+        })
+}
+
 /// The raster pipeline and its per-viewer uniforms.
 pub(crate) struct GBuffer {
     pipeline: wgpu::RenderPipeline,
@@ -38,23 +72,12 @@ pub(crate) struct GBuffer {
 
 impl GBuffer {
     pub(crate) fn new(ctx: &GpuContext) -> Self {
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("gbuffer"),
-                entries: &[wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: true,
-                        min_binding_size: wgpu::BufferSize::new(
-                            std::mem::size_of::<RasterView>() as u64
-                        ),
-                    },
-                    count: None,
-                }],
-            });
+        let layout = dynamic_uniform_layout(
+            ctx,
+            "gbuffer",
+            wgpu::ShaderStages::VERTEX_FRAGMENT,
+            std::mem::size_of::<RasterView>() as u64,
+        );
         let module = ctx.shader("gbuffer", &[include_str!("../../shaders/gbuffer.wgsl")]);
         let pl = ctx
             .device
@@ -89,13 +112,7 @@ impl GBuffer {
                     cull_mode: None,
                     ..Default::default()
                 },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: wgpu::TextureFormat::Depth32Float,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::Less),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
+                depth_stencil: Some(depth_test()),
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &module,

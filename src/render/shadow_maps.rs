@@ -7,6 +7,7 @@
 //! both (2×2 PCF) instead of tracing a ray per pixel and light. Point and spot lights
 //! keep their rays.
 
+use super::gbuffer::{depth_test, dynamic_uniform_layout};
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
 use crate::gpu::GpuContext;
 use crate::scene::{Light, Scene};
@@ -259,21 +260,7 @@ impl ShadowMaps {
             };
         }
         let info = ctx.storage_init("shadow map info", &info_cpu, wgpu::BufferUsages::empty());
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("shadow map"),
-                entries: &[wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: true,
-                        min_binding_size: wgpu::BufferSize::new(64),
-                    },
-                    count: None,
-                }],
-            });
+        let layout = dynamic_uniform_layout(ctx, "shadow map", wgpu::ShaderStages::VERTEX, 64);
         let pipeline = (!lights.is_empty()).then(|| Self::pipeline(ctx, &layout));
         let uniforms = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow map views"),
@@ -325,13 +312,7 @@ impl ShadowMaps {
                     cull_mode: None,
                     ..Default::default()
                 },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: wgpu::TextureFormat::Depth32Float,
-                    depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::Less),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
+                depth_stencil: Some(depth_test()),
                 multisample: Default::default(),
                 fragment: None,
                 multiview_mask: None,
