@@ -45,7 +45,7 @@ struct MapSet {
     bounds: Aabb,
     /// Index range drawn into it.
     indices: std::ops::Range<u32>,
-    /// Scene time its layers were rendered for (`None`: never).
+    /// Light directions its layers were rendered for (`None`: never).
     rendered_for: Option<Vec<[f32; 3]>>,
 }
 
