@@ -161,6 +161,12 @@ fn froxel_sample(v: View, xy: vec2u, slice: u32) -> FroxelSample {
     return FroxelSample(v.position + dir * (z / dot(dir, v.forward)), dir);
 }
 
+// Index of froxel column (x, y) of viewer `view_index` in per-column buffers (culling's
+// tile depths and slice limits).
+fn column_index(v: View, view_index: u32, x: u32, y: u32) -> u32 {
+    return view_index * v.froxel_dims.x * v.froxel_dims.y + x + v.froxel_dims.x * y;
+}
+
 // Continuous grid coordinate of `p`: voxel centres sit at integers.
 fn grid_coord(p: vec3f) -> vec3f {
     return (p - frame.grid_min) / frame.voxel_size - 0.5;

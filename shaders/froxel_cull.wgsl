@@ -11,10 +11,6 @@
 @group(1) @binding(1) var<storage, read_write> column_limit: array<u32>;
 @group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
 
-fn column_index(v: View, view_index: u32, x: u32, y: u32) -> u32 {
-    return view_index * v.froxel_dims.x * v.froxel_dims.y + x + v.froxel_dims.x * y;
-}
-
 @compute @workgroup_size(8, 8, 1)
 fn tile_max(@builtin(global_invocation_id) gid: vec3u) {
     if gid.z >= frame.view_count {

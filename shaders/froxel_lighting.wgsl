@@ -72,7 +72,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
             let index = v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * slice);
             // Hidden behind every surface this column shows: never reaches the image.
             let hidden = (frame.flags & FLAG_CULL) != 0u
-                && slice > column_limit[view_index * v.froxel_dims.x * v.froxel_dims.y + gid.x + v.froxel_dims.x * gid.y];
+                && slice > column_limit[column_index(v, view_index, gid.x, gid.y)];
             let sample = froxel_sample(v, gid.xy, slice);
             let p = sample.p;
             let dir = sample.dir;

@@ -73,7 +73,7 @@ fn request_column(gid: vec3u) {
     }
     var last = frame.slices - 1u;
     if (frame.flags & FLAG_CULL) != 0u {
-        last = column_limit[gid.z * v.froxel_dims.x * v.froxel_dims.y + gid.x + v.froxel_dims.x * gid.y];
+        last = column_limit[column_index(v, gid.z, gid.x, gid.y)];
     }
     let trilinear = (frame.flags & FLAG_TRILINEAR) != 0u;
     var prev = vec3i(-2147483647);
