@@ -155,10 +155,20 @@ struct FroxelSample {
 }
 
 fn froxel_sample(v: View, xy: vec2u, slice: u32) -> FroxelSample {
+    let dir = froxel_ray(v, xy);
+    return FroxelSample(froxel_point(v, dir, slice), dir);
+}
+
+// The unit view ray of froxel column `xy`.
+fn froxel_ray(v: View, xy: vec2u) -> vec3f {
     let pix = (vec2f(xy) + 0.5) * f32(v.froxel_px);
-    let dir = view_ray(v, min(pix, vec2f(v.size) - 0.5)); // past the edge: the last pixel centre
+    return view_ray(v, min(pix, vec2f(v.size) - 0.5)); // past the edge: the last pixel centre
+}
+
+// The sample point of `slice` on the column's ray `dir`.
+fn froxel_point(v: View, dir: vec3f, slice: u32) -> vec3f {
     let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
-    return FroxelSample(v.position + dir * (z / dot(dir, v.forward)), dir);
+    return v.position + dir * (z / dot(dir, v.forward));
 }
 
 // Index of froxel column (x, y) of viewer `view_index` in per-column buffers (culling's

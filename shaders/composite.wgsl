@@ -7,54 +7,7 @@
 @group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
 @group(1) @binding(3) var gbuf_normal: texture_2d_array<f32>;
 @group(1) @binding(4) var gbuf_albedo: texture_2d_array<f32>;
-@group(1) @binding(5) var scene_maps: texture_depth_2d_array;
-@group(1) @binding(6) var shadow_sampler: sampler_comparison;
-@group(1) @binding(8) var mover_maps: texture_depth_2d_array;
-
-// Shared surface shadow maps of a directional light (src/render/shadow_maps.rs): one of
-// the static scene, one of the movers alone.
-struct ShadowMap {
-    view_proj: mat4x4f,
-    layer: i32,       // −1: no map
-    texel_m: f32,
-    _pad: vec2f,
-}
-struct LightMaps {
-    scene: ShadowMap,
-    movers: ShadowMap,
-}
-@group(1) @binding(7) var<storage, read> map_info: array<LightMaps>;
-
-// Shadow-map coordinates (uv, depth) of surface point `p` with normal `n`, pushed along
-// the normal by 3/4 of a texel to clear the map's depth steps (measured best on Sponza
-// among 0.4, 0.75, 1 and slope-scaled offsets: docs/decisions.md).
-fn map_coord(m: ShadowMap, p: vec3f, n: vec3f) -> vec3f {
-    let offset = 0.75 * m.texel_m;
-    let c = m.view_proj * vec4f(p + n * offset, 1.0);
-    return vec3f(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5, c.z);
-}
-
-// Inside the map's footprint. A receiver past the map's far plane is behind every caster
-// in it: its depth is clamped to 1 (shadowed where the map holds a caster).
-fn inside(c: vec3f) -> bool {
-    return all(c.xy >= vec2f(0.0)) && all(c.xy <= vec2f(1.0));
-}
-
-// Visibility (0..1, 2×2 PCF) of a directional light at a lit surface point from its maps.
-fn map_visibility(m: LightMaps, p: vec3f, n: vec3f) -> f32 {
-    var vis = 1.0;
-    let cs = map_coord(m.scene, p, n);
-    if inside(cs) {
-        vis = textureSampleCompareLevel(scene_maps, shadow_sampler, cs.xy, m.scene.layer, min(cs.z, 1.0));
-    }
-    if m.movers.layer >= 0 {
-        let cm = map_coord(m.movers, p, n);
-        if inside(cm) {
-            vis *= textureSampleCompareLevel(mover_maps, shadow_sampler, cm.xy, m.movers.layer, min(cm.z, 1.0));
-        }
-    }
-    return vis;
-}
+// Bindings 5–8: the shadow maps (shaders/shadow_lookup.wgsl).
 
 fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
     if s < 0 {
@@ -133,7 +86,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
                     }
                     let m = map_info[li];
                     if m.scene.layer >= 0 {
-                        irradiance += radiance * ndl * map_visibility(m, p, n);
+                        irradiance += radiance * ndl * map_visibility(m, p, n, 0.75);
                         continue;
                     }
                     rays += 1u;

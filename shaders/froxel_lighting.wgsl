@@ -60,81 +60,94 @@ fn grid_visibility(p: vec3f) -> GridVisibility {
     return GridVisibility(vis, missing);
 }
 
+// The radiance source and extinction of froxel (xy, slice) of view `v` at `p`, seen
+// along `dir` (the column's view ray); adds the shadow rays it traced to `rays`.
+fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<function, u32>) -> vec4f {
+    let m = sample_media(p);
+    if m.extinction <= 0.0 && all(m.emission <= vec3f(0.0)) {
+        return vec4f(0.0);
+    }
+    var vis: array<f32, 8>;
+    var trace = (frame.flags & FLAG_SHARED) == 0u;
+    if trace {
+        // reference: traced below
+    } else if slice < frame.frustum_slices {
+        let fx = min(xy.x * v.froxel_px / v.frustum_px, v.frustum_dims.x - 1u);
+        let fy = min(xy.y * v.froxel_px / v.frustum_px, v.frustum_dims.y - 1u);
+        let mask = frustum[v.frustum_base + fx + v.frustum_dims.x * (fy + v.frustum_dims.y * slice)];
+        for (var li = 0u; li < 8u; li++) {
+            vis[li] = f32((mask >> li) & 1u);
+        }
+    } else {
+        let gv = grid_visibility(p);
+        vis = gv.vis;
+        trace = gv.missing;
+    }
+    if trace {
+        for (var li = 0u; li < frame.light_count; li++) {
+            let l = lights[li];
+            vis[li] = 0.0;
+            if all(light_radiance(l, p) == vec3f(0.0)) {
+                continue;
+            }
+            *rays += 1u;
+            vis[li] = select(0.0, 1.0, light_visible(l, p));
+        }
+    }
+    // Stored as the source radiance S/σt (what an optically thick froxel converges to),
+    // which stays within f16 range for σt up to 10⁴ m⁻¹.
+    let s_rgb = in_scattering(m, p, dir, vis);
+    return vec4f(min(s_rgb / max(m.extinction, SIGMA_EPS), vec3f(6.0e4)), m.extinction);
+}
+
+// Temporal reprojection: `out` blended with last frame's froxel at the same world point
+// `p`; a non-finite history is discarded, never propagated.
+fn blend_history(v: View, p: vec3f, out: vec4f) -> vec4f {
+    let prev = v.prev_view_proj * vec4f(p, 1.0);
+    if prev.w <= 0.0 {
+        return out;
+    }
+    let ndc = prev.xyz / prev.w;
+    let px = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5) * vec2f(v.size) / f32(v.froxel_px);
+    let s = depth_to_slice(v, prev.w);
+    if all(px >= vec2f(0.0)) && all(px < vec2f(v.froxel_dims)) && s >= 0.0 && s < f32(frame.slices) {
+        let hi = v.froxel_base + u32(px.x) + v.froxel_dims.x * (u32(px.y) + v.froxel_dims.y * u32(s));
+        let h = unpack_rgba16(history[hi]);
+        if all(abs(h) < vec4f(6.0e4)) {
+            return mix(out, h, 0.9);
+        }
+    }
+    return out;
+}
+
+// One invocation per froxel column (z runs over viewers), front to back: the view, its
+// ray and the column's cull limit are read once, not once per froxel.
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3u) {
     var rays = 0u;
     var lit = 0u;
-    let view_index = gid.z / frame.slices;
-    let slice = gid.z % frame.slices;
+    let view_index = gid.z;
     if view_index < frame.view_count {
         let v = views[view_index];
         if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y {
-            let index = v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * slice);
-            // Hidden behind every surface this column shows: never reaches the image.
-            let hidden = (frame.flags & FLAG_CULL) != 0u
-                && slice > column_limit[column_index(v, view_index, gid.x, gid.y)];
-            let sample = froxel_sample(v, gid.xy, slice);
-            let p = sample.p;
-            let dir = sample.dir;
-            var m = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
-            if !hidden {
-                m = sample_media(p);
+            // Slices behind every surface this column shows never reach the image.
+            var last = frame.slices - 1u;
+            if (frame.flags & FLAG_CULL) != 0u {
+                last = column_limit[column_index(v, view_index, gid.x, gid.y)];
             }
-            var out = vec4f(0.0);
-            if m.extinction > 0.0 || any(m.emission > vec3f(0.0)) {
-                var vis: array<f32, 8>;
-                var trace = (frame.flags & FLAG_SHARED) == 0u;
-                if trace {
-                    // reference: traced below
-                } else if slice < frame.frustum_slices {
-                    let fx = min(gid.x * v.froxel_px / v.frustum_px, v.frustum_dims.x - 1u);
-                    let fy = min(gid.y * v.froxel_px / v.frustum_px, v.frustum_dims.y - 1u);
-                    let mask = frustum[v.frustum_base + fx + v.frustum_dims.x * (fy + v.frustum_dims.y * slice)];
-                    for (var li = 0u; li < 8u; li++) {
-                        vis[li] = f32((mask >> li) & 1u);
-                    }
-                } else {
-                    let gv = grid_visibility(p);
-                    vis = gv.vis;
-                    trace = gv.missing;
+            let dir = froxel_ray(v, gid.xy);
+            for (var slice = 0u; slice < frame.slices; slice++) {
+                let p = froxel_point(v, dir, slice);
+                var out = vec4f(0.0);
+                if slice <= last {
+                    out = light_froxel(v, gid.xy, slice, p, dir, &rays);
+                    lit += select(0u, 1u, out.w > 0.0 || any(out.rgb > vec3f(0.0)));
                 }
-                if trace {
-                    for (var li = 0u; li < frame.light_count; li++) {
-                        let l = lights[li];
-                        vis[li] = 0.0;
-                        if all(light_radiance(l, p) == vec3f(0.0)) {
-                            continue;
-                        }
-                        rays += 1u;
-                        vis[li] = select(0.0, 1.0, light_visible(l, p));
-                    }
+                if (frame.flags & FLAG_HISTORY) != 0u {
+                    out = blend_history(v, p, out);
                 }
-                // Stored as the source radiance S/σt (what an optically thick froxel converges
-                // to), which stays within f16 range for σt up to 10⁴ m⁻¹.
-                let s_rgb = in_scattering(m, p, dir, vis);
-                out = vec4f(min(s_rgb / max(m.extinction, SIGMA_EPS), vec3f(6.0e4)), m.extinction);
-                lit = 1u;
+                froxels[v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * slice)] = pack_rgba16(out);
             }
-            if (frame.flags & FLAG_HISTORY) != 0u {
-                // Temporal reprojection: blend with last frame's froxel at the same
-                // world point; a non-finite history is discarded, never propagated.
-                let prev = v.prev_view_proj * vec4f(p, 1.0);
-                if prev.w > 0.0 {
-                    let ndc = prev.xyz / prev.w;
-                    let px = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5) * vec2f(v.size) / f32(v.froxel_px);
-                    let zprev = prev.w;
-                    let s = depth_to_slice(v, zprev);
-                    if all(px >= vec2f(0.0)) && all(px < vec2f(v.froxel_dims)) && s >= 0.0 && s < f32(frame.slices) {
-                        let hi = v.froxel_base + u32(px.x) + v.froxel_dims.x * (u32(px.y) + v.froxel_dims.y * u32(s));
-                        let h = unpack_rgba16(history[hi]);
-                        let finite = all(abs(h) < vec4f(6.0e4));
-                        if finite {
-                            out = mix(out, h, 0.9);
-                        }
-                    }
-                }
-            }
-            froxels[index] = pack_rgba16(out);
         }
     }
     count(C_LIGHTING_RAYS, rays);

@@ -9,17 +9,6 @@ pub(crate) struct Composite {
     pipeline: wgpu::ComputePipeline,
 }
 
-fn depth_array_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Depth,
-            view_dimension: wgpu::TextureViewDimension::D2Array,
-            multisampled: false,
-        },
-        ..texture_entry(binding)
-    }
-}
-
 pub(crate) fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -35,31 +24,27 @@ pub(crate) fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
 
 impl Composite {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
+        let mut entries = vec![
+            storage_entry(0, true),
+            storage_entry(1, false),
+            texture_entry(2),
+            texture_entry(3),
+            texture_entry(4),
+        ];
+        entries.extend(ShadowMaps::layout_entries());
         let layout = ctx
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("composite"),
-                entries: &[
-                    storage_entry(0, true),
-                    storage_entry(1, false),
-                    texture_entry(2),
-                    texture_entry(3),
-                    texture_entry(4),
-                    depth_array_entry(5),
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 6,
-                        visibility: wgpu::ShaderStages::COMPUTE,
-                        ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
-                        count: None,
-                    },
-                    storage_entry(7, true),
-                    depth_array_entry(8),
-                ],
+                entries: &entries,
             });
         let module = super::stage_shader(
             ctx,
             "composite",
-            include_str!("../../shaders/composite.wgsl"),
+            concat!(
+                include_str!("../../shaders/shadow_lookup.wgsl"),
+                include_str!("../../shaders/composite.wgsl")
+            ),
         );
         Composite {
             pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),
@@ -95,48 +80,34 @@ impl Composite {
             array_view(&volumes.gbuf_normal),
             array_view(&volumes.gbuf_albedo),
         );
-        let (map, mover_map) = maps.views();
+        let map_views = maps.views();
+        let mut entries = vec![
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: volumes.integrated.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: volumes.output.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(&pos),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: wgpu::BindingResource::TextureView(&nrm),
+            },
+            wgpu::BindGroupEntry {
+                binding: 4,
+                resource: wgpu::BindingResource::TextureView(&alb),
+            },
+        ];
+        entries.extend(maps.entries(&map_views));
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("composite"),
             layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: volumes.integrated.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: volumes.output.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&pos),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: wgpu::BindingResource::TextureView(&nrm),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: wgpu::BindingResource::TextureView(&alb),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: wgpu::BindingResource::TextureView(&map),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 6,
-                    resource: wgpu::BindingResource::Sampler(&maps.sampler),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 7,
-                    resource: maps.info.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 8,
-                    resource: wgpu::BindingResource::TextureView(&mover_map),
-                },
-            ],
+            entries: &entries,
         });
         let mut pass = compute_pass(enc, "composite", ts.writes(Stage::Composite));
         pass.set_pipeline(&self.pipeline);

@@ -29,11 +29,7 @@ impl FroxelLighting {
 
     pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
         let [x, y] = volumes.layout.froxel_dims;
-        [
-            x.div_ceil(8),
-            y.div_ceil(8),
-            volumes.slices * volumes.count as u32,
-        ]
+        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
     }
 
     /// `grid` is `None` in `reference` mode, where every froxel traces its own rays.

@@ -705,8 +705,14 @@ impl Renderer {
                     dispatches.push(("shared_grid", grid.workgroups()));
                 }
                 if vol.frustum_slices > 0 {
-                    self.frustum
-                        .add_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
+                    self.frustum.add_pass(
+                        &ctx,
+                        &mut enc,
+                        scene_bg,
+                        vol,
+                        &self.shadow_maps,
+                        &self.timestamps,
+                    );
                     dispatches.push((
                         "shadow_frustum",
                         shadow_frustum::ShadowFrustum::workgroups(vol),

@@ -1,8 +1,9 @@
 //! Stage 2 (paper 000 §3.1.2): per-viewer shadow frustums, all viewers in one dispatch,
-//! with `shaders/shadow_frustum.wgsl`.
+//! with `shaders/shadow_frustum.wgsl`; directional lights with a shared shadow map are
+//! looked up in it (`shaders/shadow_lookup.wgsl`) instead of traced.
 
-use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
-use crate::gpu::GpuContext;
+use super::{compute_pass, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
+use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the shadow frustum update.
 pub(crate) struct ShadowFrustum {
@@ -12,11 +13,21 @@ pub(crate) struct ShadowFrustum {
 
 impl ShadowFrustum {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ctx.storage_layout("shadow frustum", &[true]);
+        let mut entries = vec![storage_entry(0, false)];
+        entries.extend(ShadowMaps::layout_entries());
+        let layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("shadow frustum"),
+                entries: &entries,
+            });
         let module = super::stage_shader(
             ctx,
             "shadow_frustum",
-            include_str!("../../shaders/shadow_frustum.wgsl"),
+            concat!(
+                include_str!("../../shaders/shadow_lookup.wgsl"),
+                include_str!("../../shaders/shadow_frustum.wgsl")
+            ),
         );
         ShadowFrustum {
             pipeline: ctx.compute_pipeline("shadow_frustum", &module, &[scene_layout, &layout]),
@@ -26,11 +37,7 @@ impl ShadowFrustum {
 
     pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
         let [x, y] = volumes.layout.frustum_dims;
-        [
-            x.div_ceil(8),
-            y.div_ceil(8),
-            volumes.frustum_slices * volumes.count as u32,
-        ]
+        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
     }
 
     pub(crate) fn add_pass(
@@ -39,9 +46,20 @@ impl ShadowFrustum {
         enc: &mut wgpu::CommandEncoder,
         scene: &wgpu::BindGroup,
         volumes: &ViewerVolumes,
+        maps: &ShadowMaps,
         ts: &Timestamps,
     ) {
-        let bg = ctx.bind_buffers("shadow frustum", &self.layout, &[&volumes.frustum]);
+        let map_views = maps.views();
+        let mut entries = vec![wgpu::BindGroupEntry {
+            binding: 0,
+            resource: volumes.frustum.as_entire_binding(),
+        }];
+        entries.extend(maps.entries(&map_views));
+        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("shadow frustum"),
+            layout: &self.layout,
+            entries: &entries,
+        });
         let mut pass = compute_pass(enc, "shadow_frustum", ts.writes(Stage::ShadowFrustum));
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, scene, &[]);

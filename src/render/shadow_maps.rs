@@ -9,7 +9,7 @@
 
 use super::gbuffer::{depth_test, dynamic_uniform_layout};
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
-use crate::gpu::GpuContext;
+use crate::gpu::{storage_entry, GpuContext};
 use crate::scene::{Light, Scene};
 use glam::{Mat4, Vec3};
 
@@ -53,9 +53,9 @@ struct MapSet {
 pub(crate) struct ShadowMaps {
     scene_maps: MapSet,
     mover_maps: MapSet,
-    pub(crate) sampler: wgpu::Sampler,
+    sampler: wgpu::Sampler,
     /// One [`LightMapsGpu`] per scene light.
-    pub(crate) info: wgpu::Buffer,
+    info: wgpu::Buffer,
     info_cpu: Vec<LightMapsGpu>,
     /// Scene lights with maps (directional ones), in layer order.
     lights: Vec<usize>,
@@ -320,9 +320,60 @@ impl ShadowMaps {
             })
     }
 
-    /// Views of the static and the movers' depth arrays (for the composite's bindings).
+    /// Views of the static and the movers' depth arrays, for [`Self::entries`].
     pub(crate) fn views(&self) -> (wgpu::TextureView, wgpu::TextureView) {
         (self.scene_maps.view(), self.mover_maps.view())
+    }
+
+    /// Layout entries 5–8 of a compute stage that reads the maps
+    /// (`shaders/shadow_lookup.wgsl`).
+    pub(crate) fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 4] {
+        let depth_array = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Depth,
+                view_dimension: wgpu::TextureViewDimension::D2Array,
+                multisampled: false,
+            },
+            count: None,
+        };
+        [
+            depth_array(5),
+            wgpu::BindGroupLayoutEntry {
+                binding: 6,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                count: None,
+            },
+            storage_entry(7, true),
+            depth_array(8),
+        ]
+    }
+
+    /// Bind-group entries 5–8 for [`Self::layout_entries`], with `views` from [`Self::views`].
+    pub(crate) fn entries<'a>(
+        &'a self,
+        views: &'a (wgpu::TextureView, wgpu::TextureView),
+    ) -> [wgpu::BindGroupEntry<'a>; 4] {
+        [
+            wgpu::BindGroupEntry {
+                binding: 5,
+                resource: wgpu::BindingResource::TextureView(&views.0),
+            },
+            wgpu::BindGroupEntry {
+                binding: 6,
+                resource: wgpu::BindingResource::Sampler(&self.sampler),
+            },
+            wgpu::BindGroupEntry {
+                binding: 7,
+                resource: self.info.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 8,
+                resource: wgpu::BindingResource::TextureView(&views.1),
+            },
+        ]
     }
 
     /// Bytes of the depth maps.
