@@ -49,60 +49,76 @@ fn srgb(c: vec3f) -> vec3f {
     return select(1.055 * pow(c, vec3f(1.0 / 2.4)) - 0.055, c * 12.92, c <= vec3f(0.0031308));
 }
 
+// The tone-mapped colour of pixel `xy` of view `v` (layer `layer` of the G-buffer);
+// adds the shadow rays it traced to `rays`.
+fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 {
+    let texel = vec2i(xy);
+    let pos = textureLoad(gbuf_position, texel, layer, 0);
+    let pix = vec2f(xy) + 0.5;
+    let dir = view_ray(v, pix);
+    var color = frame.sky;
+    var depth = v.far;
+    if pos.w > 0.0 {
+        depth = pos.w;
+        let p = pos.xyz;
+        var n = textureLoad(gbuf_normal, texel, layer, 0).xyz;
+        if dot(n, dir) > 0.0 {
+            n = -n;
+        }
+        let albedo = textureLoad(gbuf_albedo, texel, layer, 0).rgb;
+        var irradiance = frame.ambient * PI;
+        // Offset along the normal, scaled with distance (depth precision).
+        let origin = p + n * (2e-3 + depth * 2e-4);
+        for (var li = 0u; li < frame.light_count; li++) {
+            let l = lights[li];
+            let tl = to_light(l, origin);
+            let ndl = dot(n, tl.xyz);
+            if ndl <= 0.0 {
+                continue;
+            }
+            let radiance = light_radiance(l, origin);
+            if all(radiance == vec3f(0.0)) {
+                continue;
+            }
+            let m = map_info[li];
+            if m.scene.layer >= 0 {
+                irradiance += radiance * ndl * map_visibility(m, p, n, 0.75);
+                continue;
+            }
+            *rays += 1u;
+            if light_visible(l, origin) {
+                irradiance += radiance * ndl;
+            }
+        }
+        color = albedo / PI * irradiance;
+    }
+    if (frame.flags & FLAG_MEDIA) != 0u {
+        let fog = sample_integrated(v, pix, depth);
+        color = color * fog.w + fog.rgb;
+    }
+    let ldr = srgb(aces(color * frame.exposure));
+    let q = vec4u(vec3u(round(clamp(ldr, vec3f(0.0), vec3f(1.0)) * 255.0)), 255u);
+    return q.x | (q.y << 8u) | (q.z << 16u) | (q.w << 24u);
+}
+
+// Pixels per invocation, along x: the view is read once for all of them. Lane i of a
+// workgroup row shades pixels i, i + 8, i + 16, … of the row's 8·STRIP, so the lanes
+// work on 8 neighbouring pixels at a time (coherent shadow rays in `reference`).
+const STRIP: u32 = 4u;
+
+// z runs over viewers.
 @compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u) {
+fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(workgroup_id) wg: vec3u, @builtin(local_invocation_id) lid: vec3u) {
     var rays = 0u;
     if gid.z < frame.view_count {
         let v = views[gid.z];
-        if gid.x < v.size.x && gid.y < v.size.y {
-            let texel = vec2i(gid.xy);
-            let layer = i32(gid.z);
-            let pos = textureLoad(gbuf_position, texel, layer, 0);
-            let pix = vec2f(gid.xy) + 0.5;
-            let dir = view_ray(v, pix);
-            var color = frame.sky;
-            var depth = v.far;
-            if pos.w > 0.0 {
-                depth = pos.w;
-                let p = pos.xyz;
-                var n = textureLoad(gbuf_normal, texel, layer, 0).xyz;
-                if dot(n, dir) > 0.0 {
-                    n = -n;
+        if gid.y < v.size.y {
+            for (var k = 0u; k < STRIP; k++) {
+                let x = (wg.x * STRIP + k) * 8u + lid.x;
+                if x < v.size.x {
+                    output[v.pixel_base + x + gid.y * v.size.x] = shade_pixel(v, i32(gid.z), vec2u(x, gid.y), &rays);
                 }
-                let albedo = textureLoad(gbuf_albedo, texel, layer, 0).rgb;
-                var irradiance = frame.ambient * PI;
-                // Offset along the normal, scaled with distance (depth precision).
-                let origin = p + n * (2e-3 + depth * 2e-4);
-                for (var li = 0u; li < frame.light_count; li++) {
-                    let l = lights[li];
-                    let tl = to_light(l, origin);
-                    let ndl = dot(n, tl.xyz);
-                    if ndl <= 0.0 {
-                        continue;
-                    }
-                    let radiance = light_radiance(l, origin);
-                    if all(radiance == vec3f(0.0)) {
-                        continue;
-                    }
-                    let m = map_info[li];
-                    if m.scene.layer >= 0 {
-                        irradiance += radiance * ndl * map_visibility(m, p, n, 0.75);
-                        continue;
-                    }
-                    rays += 1u;
-                    if light_visible(l, origin) {
-                        irradiance += radiance * ndl;
-                    }
-                }
-                color = albedo / PI * irradiance;
             }
-            if (frame.flags & FLAG_MEDIA) != 0u {
-                let fog = sample_integrated(v, pix, depth);
-                color = color * fog.w + fog.rgb;
-            }
-            let ldr = srgb(aces(color * frame.exposure));
-            let q = vec4u(vec3u(round(clamp(ldr, vec3f(0.0), vec3f(1.0)) * 255.0)), 255u);
-            output[v.pixel_base + gid.x + gid.y * v.size.x] = q.x | (q.y << 8u) | (q.z << 16u) | (q.w << 24u);
         }
     }
     count(C_SURFACE_RAYS, rays);

@@ -22,6 +22,9 @@ pub(crate) fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
+/// Pixels per invocation (`STRIP` in `shaders/composite.wgsl`).
+const STRIP: u32 = 4;
+
 impl Composite {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let mut entries = vec![
@@ -54,7 +57,7 @@ impl Composite {
 
     pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
         [
-            volumes.layout.width.div_ceil(8),
+            volumes.layout.width.div_ceil(8 * STRIP),
             volumes.layout.height.div_ceil(8),
             volumes.count as u32,
         ]
