@@ -297,6 +297,58 @@ fn hidden_froxels_are_culled_without_changing_the_picture() {
     assert_eq!(differing, 0, "{differing} channels differ by > 1");
 }
 
+/// Relative L1 difference of the in-scattered light of two integrated volumes, and the
+/// largest transmittance difference.
+fn fog_difference(a: &[[f32; 4]], b: &[[f32; 4]]) -> (f64, f64) {
+    let (mut diff, mut sum, mut dt) = (0.0f64, 0.0f64, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        for c in 0..3 {
+            diff += (x[c] - y[c]).abs() as f64;
+            sum += x[c].abs() as f64;
+        }
+        dt = dt.max((x[3] - y[3]).abs() as f64);
+    }
+    (diff / sum.max(1e-12), dt)
+}
+
+#[test]
+fn near_field_fog_reads_the_shadow_map_instead_of_tracing() {
+    // Colonnade's sun through the skylights, the louvre turning: the shadow frustum (the
+    // first third of the slices, near each eye) looks the sun up in the shared map.
+    let scene = Arc::new(Scene::load("colonnade").unwrap());
+    let cams = scene.camera.viewers(2, 1.0);
+    let mut rays = Renderer::new(gpu(), scene.clone(), settings(true, true)).unwrap();
+    let map_settings = Settings {
+        shadow_map_px: 4096,
+        ..settings(true, true)
+    };
+    let mut map = Renderer::new(gpu(), scene.clone(), map_settings).unwrap();
+    for t in [1.0, 1.5] {
+        let a = render(&mut rays, &cams, t);
+        let b = render(&mut map, &cams, t);
+        let (rel, dt) = fog_difference(
+            &rays.read_integrated_volume().unwrap(),
+            &map.read_integrated_volume().unwrap(),
+        );
+        println!(
+            "t {t}: frustum rays traced {} vs map {}; in-scattered light differs by {:.3} % (L1), transmittance by {dt}",
+            a.stats.rays.shadow_frustum,
+            b.stats.rays.shadow_frustum,
+            rel * 100.0
+        );
+        assert!(a.stats.rays.shadow_frustum > 1000);
+        assert_eq!(b.stats.rays.shadow_frustum, 0, "the sun is the only light");
+        // Shadows change where light scatters, never how much the fog absorbs.
+        assert_eq!(dt, 0.0);
+        assert!(rel > 0.0, "the two near fields are computed differently");
+        assert!(
+            rel < 0.01,
+            "in-scattered light differs by {:.3} %",
+            rel * 100.0
+        );
+    }
+}
+
 #[test]
 fn shared_shadow_map_replaces_surface_rays_at_small_error() {
     let scene = Arc::new(Scene::load("colonnade").unwrap());

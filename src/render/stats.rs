@@ -10,7 +10,8 @@ use serde::{Deserialize, Serialize};
 pub struct RayCounts {
     /// Stage 1: shared grid voxels × lights.
     pub shared_grid: u64,
-    /// Stage 2: shadow frustum froxels × lights.
+    /// Stage 2: shadow frustum froxels × lights traced (directional lights with a
+    /// shared shadow map are looked up in it instead).
     pub shadow_frustum: u64,
     /// Stage 3: froxels × lights (`reference` only).
     pub froxel_lighting: u64,
