@@ -3,6 +3,7 @@
 use super::gpu_types::{FrameGpu, LightGpu, MediumGpu, ViewGpu, COUNTERS};
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, GpuBvhNode, GpuTriangle, Scene, TriangleMesh};
+use glam::Vec3;
 
 /// `Frame.mover_root` when the scene has no movers.
 pub(crate) const NO_MOVERS: u32 = u32::MAX;
@@ -16,6 +17,73 @@ fn raster_vertices(mesh: &TriangleMesh) -> Vec<[u32; 4]> {
         .collect()
 }
 
+/// Triangles per raster cluster: small enough that a viewer's frustum rejects most of a
+/// scene it does not see, large enough that a frame issues few draws.
+const CLUSTER_TRIANGLES: usize = 1024;
+
+/// A run of static triangles close together in space, culled as one box.
+#[derive(Debug, Clone)]
+pub(crate) struct RasterCluster {
+    /// Index range in `SceneGpu::indices`.
+    pub indices: std::ops::Range<u32>,
+    pub min: Vec3,
+    pub max: Vec3,
+}
+
+/// The static triangles in Morton order of their centroids, cut into clusters of
+/// `CLUSTER_TRIANGLES`; returns the reordered triangles and the clusters.
+fn cluster_triangles(mesh: &TriangleMesh) -> (Vec<[u32; 3]>, Vec<RasterCluster>) {
+    let centroid = |t: &[u32; 3]| {
+        (mesh.positions[t[0] as usize]
+            + mesh.positions[t[1] as usize]
+            + mesh.positions[t[2] as usize])
+            / 3.0
+    };
+    let (lo, hi) = mesh.indices.iter().map(centroid).fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), c| (lo.min(c), hi.max(c)),
+    );
+    let scale = 1023.0 / (hi - lo).max(Vec3::splat(1e-6));
+    let spread = |v: u32| {
+        // 10 bits to every third of 30.
+        let mut x = v & 0x3ff;
+        x = (x | (x << 16)) & 0x030000ff;
+        x = (x | (x << 8)) & 0x0300f00f;
+        x = (x | (x << 4)) & 0x030c30c3;
+        (x | (x << 2)) & 0x09249249
+    };
+    let mut order: Vec<(u32, [u32; 3])> = mesh
+        .indices
+        .iter()
+        .map(|t| {
+            let q = ((centroid(t) - lo) * scale).round().as_uvec3();
+            (spread(q.x) | spread(q.y) << 1 | spread(q.z) << 2, *t)
+        })
+        .collect();
+    order.sort_by_key(|(code, _)| *code);
+    let tris: Vec<[u32; 3]> = order.into_iter().map(|(_, t)| t).collect();
+    let clusters = tris
+        .chunks(CLUSTER_TRIANGLES)
+        .enumerate()
+        .map(|(i, chunk)| {
+            let (min, max) = chunk.iter().flatten().fold(
+                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+                |(lo, hi), v| {
+                    let p = mesh.positions[*v as usize];
+                    (lo.min(p), hi.max(p))
+                },
+            );
+            let start = (i * CLUSTER_TRIANGLES * 3) as u32;
+            RasterCluster {
+                indices: start..start + chunk.len() as u32 * 3,
+                min,
+                max,
+            }
+        })
+        .collect();
+    (tris, clusters)
+}
+
 /// Scene buffers: BVH, lights, media, and the small per-frame uniforms and counters.
 pub(crate) struct SceneGpu {
     pub frame: wgpu::Buffer,
@@ -26,6 +94,8 @@ pub(crate) struct SceneGpu {
     pub vertices: wgpu::Buffer,
     pub indices: wgpu::Buffer,
     pub index_count: u32,
+    /// The static triangles' clusters, in index order; the movers' indices follow them.
+    pub clusters: Vec<RasterCluster>,
     /// (name, bytes) of every shared scene buffer.
     pub memory: Vec<(&'static str, u64)>,
     views_capacity: usize,
@@ -142,9 +212,11 @@ impl SceneGpu {
         let tris = ctx.storage_init("bvh triangles", &tri_data, wgpu::BufferUsages::COPY_DST);
         let layout = ctx.storage_layout("scene", &[false, false, false, false, false, false, true]);
 
-        // Raster vertices and indices: the static mesh, then the movers (whose vertices
-        // are rewritten every frame).
+        // Raster vertices and indices: the static mesh in clusters, then the movers (whose
+        // vertices are rewritten every frame).
         let mut all = scene.mesh.clone();
+        let (static_tris, clusters) = cluster_triangles(&scene.mesh);
+        all.indices = static_tris;
         all.append(&movers);
         let verts = raster_vertices(&all);
         let idx: Vec<u32> = all.indices.iter().flatten().copied().collect();
@@ -176,6 +248,7 @@ impl SceneGpu {
             vertices,
             indices,
             index_count: idx.len() as u32,
+            clusters,
             memory,
             views_capacity,
             lights,
@@ -214,5 +287,40 @@ impl SceneGpu {
             ],
         );
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clusters_keep_every_triangle_and_bound_their_own() {
+        // Sponza: 262k triangles, 256 clusters.
+        let scene = Scene::load("scenes/sponza.toml").unwrap();
+        let mesh = &scene.mesh;
+        let (tris, clusters) = cluster_triangles(mesh);
+        assert!(clusters.len() > 100);
+        let mut before = mesh.indices.clone();
+        let mut after = tris.clone();
+        before.sort();
+        after.sort();
+        assert_eq!(before, after, "the same triangles, reordered");
+        assert_eq!(
+            clusters.len(),
+            mesh.indices.len().div_ceil(CLUSTER_TRIANGLES)
+        );
+        let mut next = 0;
+        for c in &clusters {
+            assert_eq!(c.indices.start, next, "clusters are contiguous");
+            next = c.indices.end;
+            for t in &tris[c.indices.start as usize / 3..c.indices.end as usize / 3] {
+                for v in t {
+                    let p = mesh.positions[*v as usize];
+                    assert!(p.cmpge(c.min).all() && p.cmple(c.max).all());
+                }
+            }
+        }
+        assert_eq!(next as usize, tris.len() * 3);
     }
 }
