@@ -32,7 +32,7 @@ render: deps-runtime build
 # The default scaling sweep of docs/performance.md: 1-16 viewers along each scene's camera
 # path, reference vs shared on the same frames, at 320x180 per viewer; colonnade also with
 # 0.5 m and 0.125 m grids and the fixed-overlap scenario (paper Figure 12). Reports and
-# plots go to out/bench/<scene>/. About 15 minutes on 2 cores with lavapipe. The dev
+# plots go to out/bench/<scene>/. About 12 minutes on 2 cores with lavapipe. The dev
 # profile (opt-level 2, the one `make test` builds) is enough: the GPU work runs in Mesa.
 # Flags for every run, e.g. BENCH_ARGS="--frames 3 --width 640 --height 360".
 BENCH_ARGS ?=

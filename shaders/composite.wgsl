@@ -1,6 +1,7 @@
-// Composite + tone map, all viewers in one dispatch: surface shading with ray-traced
-// shadows, then `surface × transmittance + in-scattered` from the integrated volume
-// at the pixel's depth (000 §3.1.4), ACES-fitted tone curve, sRGB, RGBA8 out.
+// Composite + tone map, all viewers in one dispatch: surface shading (directional lights
+// from the shared shadow maps when there are any, other lights by a shadow ray), then
+// `surface × transmittance + in-scattered` from the integrated volume at the pixel's
+// depth (000 §3.1.4), ACES-fitted tone curve, sRGB, RGBA8 out.
 
 @group(1) @binding(0) var<storage, read> integrated: array<vec2u>;
 @group(1) @binding(1) var<storage, read_write> output: array<u32>;
