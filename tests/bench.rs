@@ -192,14 +192,16 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         (linear / 4.0 - 1.0).abs() <= LINEAR_TOLERANCE,
         "reference rays at 4 viewers are {linear:.2}× those at 1: not about 4×"
     );
-    // The paper's grid grows sub-linearly; fogcast's defaults (demand-driven, cached)
-    // trace fewer rays than it at every count. (Cached, what is traced is what the
-    // cameras newly see each frame, which grows with the viewers from a small base.)
-    assert!(
-        p4 / p1 <= MAX_SHARED_GROWTH,
-        "the paper's shared rays grew {:.2}× from 1 to 4 viewers (bound {MAX_SHARED_GROWTH})",
-        p4 / p1
-    );
+    // The paper's grid grows sub-linearly; fogcast's defaults (demand-driven, cached,
+    // the sun's near field from the shared map) trace fewer rays than it at every count
+    // and grow sub-linearly too: what they trace is what the cameras newly see.
+    for (name, a, b) in [("paper", p1, p4), ("shared", s1, s4)] {
+        assert!(
+            b / a <= MAX_SHARED_GROWTH,
+            "{name}'s rays grew {:.2}× from 1 to 4 viewers (bound {MAX_SHARED_GROWTH})",
+            b / a
+        );
+    }
     assert!(s1 < p1 && s4 < p4, "shared {s1}/{s4} vs paper {p1}/{p4}");
     assert!(
         s4 <= 0.5 * r4,
