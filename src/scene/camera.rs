@@ -24,6 +24,10 @@ pub struct CameraPath {
     pub pitch_deg: f32,
 }
 
+/// A viewer looking along the path turns at a corner over the path it walks from this
+/// long before the corner to this long after, seconds (at least half a metre each way).
+const TURN_S: f32 = 1.0;
+
 fn default_fov() -> f32 {
     70.0
 }
@@ -208,10 +212,15 @@ impl CameraPath {
                         Vec3::NEG_Z,
                     )
                 } else {
-                    self.sample(
-                        ((i as f32 + 0.5) / n as f32 * len + time_s * self.speed_mps)
-                            .rem_euclid(len),
-                    )
+                    let s = (i as f32 + 0.5) / n as f32 * len + time_s * self.speed_mps;
+                    let (pos, look, tangent) = self.sample(s.rem_euclid(len));
+                    // Look along the chord from TURN_S behind to TURN_S ahead: the
+                    // tangent on straight stretches, a steady turn around a corner
+                    // (instead of snapping to the next segment's direction).
+                    let reach = (TURN_S * self.speed_mps).max(0.5);
+                    let behind = self.sample((s - reach).rem_euclid(len)).0;
+                    let ahead = self.sample((s + reach).rem_euclid(len)).0;
+                    (pos, look, (ahead - behind).normalize_or(tangent))
                 };
                 let pitched = {
                     let flat = Vec3::new(dir.x, 0.0, dir.z).normalize_or(Vec3::NEG_Z);
@@ -229,5 +238,27 @@ impl CameraPath {
                 Camera::new(pos, forward, fov_y)
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::scene::Scene;
+
+    #[test]
+    fn viewers_turn_smoothly_around_corners() {
+        // street's loop turns 180° over two corners 3 m apart; a frame is 1/30 s.
+        for name in ["colonnade", "street", "islands", "scenes/sponza.toml"] {
+            let cam = Scene::load(name).unwrap().camera;
+            let mut worst = 0.0f32;
+            for frame in 0..(60.0 * 30.0) as usize {
+                let t = frame as f32 / 30.0;
+                let a = cam.viewers(1, t)[0].forward;
+                let b = cam.viewers(1, t + 1.0 / 30.0)[0].forward;
+                worst = worst.max(a.angle_between(b).to_degrees());
+            }
+            println!("{name}: largest turn between frames {worst:.2}°");
+            assert!(worst < 5.0, "{name}: the view turns {worst}° in one frame");
+        }
     }
 }
