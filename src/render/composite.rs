@@ -1,6 +1,6 @@
 //! Composite + tone map, all viewers in one dispatch, with `shaders/composite.wgsl`.
 
-use super::{compute_pass, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the composite stage.
@@ -112,11 +112,13 @@ impl Composite {
             layout: &self.layout,
             entries: &entries,
         });
-        let mut pass = compute_pass(enc, "composite", ts.writes(Stage::Composite));
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, scene, &[]);
-        pass.set_bind_group(1, &bg, &[]);
-        let [x, y, z] = Self::workgroups(volumes);
-        pass.dispatch_workgroups(x, y, z);
+        dispatch(
+            enc,
+            "composite",
+            ts.writes(Stage::Composite),
+            &self.pipeline,
+            [scene, &bg],
+            Self::workgroups(volumes),
+        );
     }
 }

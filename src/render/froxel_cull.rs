@@ -4,7 +4,7 @@
 //! it decides.
 
 use super::composite::texture_entry;
-use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipelines of the two culling passes.
@@ -76,15 +76,14 @@ impl FroxelCull {
         });
         let [x, y] = volumes.layout.froxel_dims;
         for (i, pipeline) in [&self.tile_max, &self.column_limit].into_iter().enumerate() {
-            let mut pass = compute_pass(
+            dispatch(
                 enc,
                 "froxel_cull",
                 ts.span_writes(Stage::GridRequests, i == 0, false),
+                pipeline,
+                [scene, &bg],
+                [x.div_ceil(8), y.div_ceil(8), volumes.count as u32],
             );
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, scene, &[]);
-            pass.set_bind_group(1, &bg, &[]);
-            pass.dispatch_workgroups(x.div_ceil(8), y.div_ceil(8), volumes.count as u32);
         }
     }
 }

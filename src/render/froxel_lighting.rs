@@ -1,7 +1,7 @@
 //! Stage 3 (paper 000 §3.1.3): in-scattering and extinction per froxel, all viewers in
 //! one dispatch, with `shaders/froxel_lighting.wgsl`.
 
-use super::{compute_pass, SharedShadowGrid, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::GpuContext;
 
 /// Pipeline of the froxel lighting stage.
@@ -57,11 +57,13 @@ impl FroxelLighting {
                 &volumes.column_limit,
             ],
         );
-        let mut pass = compute_pass(enc, "froxel_lighting", ts.writes(Stage::FroxelLighting));
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, scene, &[]);
-        pass.set_bind_group(1, &bg, &[]);
-        let [x, y, z] = Self::workgroups(volumes);
-        pass.dispatch_workgroups(x, y, z);
+        dispatch(
+            enc,
+            "froxel_lighting",
+            ts.writes(Stage::FroxelLighting),
+            &self.pipeline,
+            [scene, &bg],
+            Self::workgroups(volumes),
+        );
     }
 }

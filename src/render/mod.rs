@@ -262,6 +262,23 @@ impl Timestamps {
     }
 }
 
+/// Records one compute pass of a stage: `pipeline` with the scene's bind group (0) and
+/// the stage's own (1), over `workgroups`.
+pub(crate) fn dispatch(
+    enc: &mut wgpu::CommandEncoder,
+    label: &str,
+    ts: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    pipeline: &wgpu::ComputePipeline,
+    [scene, stage]: [&wgpu::BindGroup; 2],
+    [x, y, z]: [u32; 3],
+) {
+    let mut pass = compute_pass(enc, label, ts);
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, scene, &[]);
+    pass.set_bind_group(1, stage, &[]);
+    pass.dispatch_workgroups(x, y, z);
+}
+
 pub(crate) fn compute_pass<'e>(
     enc: &'e mut wgpu::CommandEncoder,
     label: &str,

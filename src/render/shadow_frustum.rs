@@ -2,7 +2,7 @@
 //! with `shaders/shadow_frustum.wgsl`; directional lights with a shared shadow map are
 //! looked up in it (`shaders/shadow_lookup.wgsl`) instead of traced.
 
-use super::{compute_pass, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the shadow frustum update.
@@ -60,11 +60,13 @@ impl ShadowFrustum {
             layout: &self.layout,
             entries: &entries,
         });
-        let mut pass = compute_pass(enc, "shadow_frustum", ts.writes(Stage::ShadowFrustum));
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, scene, &[]);
-        pass.set_bind_group(1, &bg, &[]);
-        let [x, y, z] = Self::workgroups(volumes);
-        pass.dispatch_workgroups(x, y, z);
+        dispatch(
+            enc,
+            "shadow_frustum",
+            ts.writes(Stage::ShadowFrustum),
+            &self.pipeline,
+            [scene, &bg],
+            Self::workgroups(volumes),
+        );
     }
 }

@@ -7,7 +7,7 @@
 //! top of either temporal caching. Storage is dense (the whole media box) or sparse:
 //! bricks of 8³ voxels allocated each frame where froxels read (paper §5.1).
 
-use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::GpuContext;
 use glam::{UVec3, Vec3};
 
@@ -263,16 +263,15 @@ impl SharedShadowGrid {
             vec![(&p.dense, froxels)]
         };
         let last = passes.len() - 1;
-        for (i, (pipeline, [x, y, z])) in passes.into_iter().enumerate() {
-            let mut pass = compute_pass(
+        for (i, (pipeline, groups)) in passes.into_iter().enumerate() {
+            dispatch(
                 enc,
                 "grid_requests",
                 ts.span_writes(Stage::GridRequests, i == 0 && !span_started, i == last),
+                pipeline,
+                [scene, &bg],
+                groups,
             );
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, scene, &[]);
-            pass.set_bind_group(1, &bg, &[]);
-            pass.dispatch_workgroups(x, y, z);
         }
         true
     }
@@ -297,16 +296,19 @@ impl SharedShadowGrid {
                 &self.slot_brick,
             ],
         );
-        let mut pass = compute_pass(enc, "shared_grid", ts.writes(Stage::SharedGrid));
-        pass.set_pipeline(if self.policy.sparse() {
+        let pipeline = if self.policy.sparse() {
             &self.sparse_pipeline
         } else {
             &self.pipeline
-        });
-        pass.set_bind_group(0, scene, &[]);
-        pass.set_bind_group(1, &bg, &[]);
-        let [x, y, z] = self.workgroups();
-        pass.dispatch_workgroups(x, y, z);
+        };
+        dispatch(
+            enc,
+            "shared_grid",
+            ts.writes(Stage::SharedGrid),
+            pipeline,
+            [scene, &bg],
+            self.workgroups(),
+        );
     }
 
     /// Bytes of every grid buffer (words or pool, touched bits, requests, validity,

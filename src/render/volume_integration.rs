@@ -1,7 +1,7 @@
 //! Stage 4 (paper 000 §3.1.4): front-to-back integration of every froxel column, all
 //! viewers in one dispatch, with `shaders/volume_integration.wgsl`.
 
-use super::{compute_pass, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, Stage, Timestamps, ViewerVolumes};
 use crate::gpu::GpuContext;
 
 /// Pipeline of the volume integration stage.
@@ -42,15 +42,13 @@ impl VolumeIntegration {
             &self.layout,
             &[&volumes.froxels, &volumes.integrated],
         );
-        let mut pass = compute_pass(
+        dispatch(
             enc,
             "volume_integration",
             ts.writes(Stage::VolumeIntegration),
+            &self.pipeline,
+            [scene, &bg],
+            Self::workgroups(volumes),
         );
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, scene, &[]);
-        pass.set_bind_group(1, &bg, &[]);
-        let [x, y, z] = Self::workgroups(volumes);
-        pass.dispatch_workgroups(x, y, z);
     }
 }
