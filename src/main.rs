@@ -118,8 +118,9 @@ struct SettingsArgs {
     /// this many bricks (0: dense grid over the whole media box). Implies --demand.
     #[arg(long, default_value_t = 0)]
     brick_pool: u32,
-    /// Surface shadows of directional lights from one shared shadow map of N² texels
-    /// (mode shared; 0: a ray per pixel and light, like reference).
+    /// Shadows of directional lights on surfaces and in the near-field fog from one
+    /// shared shadow map of N² texels (mode shared; 0: a ray per pixel or frustum froxel
+    /// and light, like reference).
     #[arg(long, default_value_t = Settings::default().shadow_map_px)]
     shadow_map: u32,
 }

@@ -105,10 +105,11 @@ pub struct Settings {
     /// A froxel whose brick did not fit in the pool traces its own rays.
     #[serde(default)]
     pub brick_pool: u32,
-    /// Surface shadows of directional lights from a shared shadow map of this many
-    /// texels a side, rendered once for all viewers and only when a light or mover
-    /// changed (beyond the paper; `shared` only; default 4096). 0: a shadow ray per pixel
-    /// and light, as `reference` always does.
+    /// Shadows of directional lights on surfaces and in the near-field fog (the shadow
+    /// frustum) from a shared shadow map of this many texels a side, rendered once for
+    /// all viewers and only when a light or mover changed (beyond the paper; `shared`
+    /// only; default 4096). 0: a shadow ray per pixel or frustum froxel and light, as
+    /// `reference` always does.
     #[serde(default)]
     pub shadow_map_px: u32,
 }

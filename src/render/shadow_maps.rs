@@ -1,11 +1,12 @@
-//! Surface shadow maps for directional lights (beyond paper 000; `shared` mode's
+//! Shadow maps for directional lights (beyond paper 000; `shared` mode's
 //! `shadow_map_px`), with `shaders/shadow_map.wgsl`. Like the shared grid, this is
 //! view-independent work done once for every viewer (DESIGN.md §1's light-space stage):
 //! per directional light, an orthographic depth map of the static scene, rendered again
 //! only when the light turns, and a small map of the movers alone over the sphere they
 //! turn in, rendered every frame they move. The composite looks surface shadows up in
-//! both (2×2 PCF) instead of tracing a ray per pixel and light. Point and spot lights
-//! keep their rays.
+//! both (2×2 PCF) instead of tracing a ray per pixel and light, and the shadow frustum
+//! the near-field fog (nearest texel) instead of a ray per frustum froxel
+//! (`shaders/shadow_lookup.wgsl`). Point and spot lights keep their rays.
 
 use super::gbuffer::{depth_test, dynamic_uniform_layout};
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
