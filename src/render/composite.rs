@@ -27,20 +27,17 @@ const STRIP: u32 = 4;
 
 impl Composite {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let mut entries = vec![
-            storage_entry(0, true),
-            storage_entry(1, false),
-            texture_entry(2),
-            texture_entry(3),
-            texture_entry(4),
-        ];
-        entries.extend(ShadowMaps::layout_entries());
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("composite"),
-                entries: &entries,
-            });
+        let layout = ShadowMaps::stage_layout(
+            ctx,
+            "composite",
+            vec![
+                storage_entry(0, true),
+                storage_entry(1, false),
+                texture_entry(2),
+                texture_entry(3),
+                texture_entry(4),
+            ],
+        );
         let module = super::stage_shader(
             ctx,
             "composite",
@@ -83,8 +80,7 @@ impl Composite {
             array_view(&volumes.gbuf_normal),
             array_view(&volumes.gbuf_albedo),
         );
-        let map_views = maps.views();
-        let mut entries = vec![
+        let entries = vec![
             wgpu::BindGroupEntry {
                 binding: 0,
                 resource: volumes.integrated.as_entire_binding(),
@@ -106,12 +102,7 @@ impl Composite {
                 resource: wgpu::BindingResource::TextureView(&alb),
             },
         ];
-        entries.extend(maps.entries(&map_views));
-        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("composite"),
-            layout: &self.layout,
-            entries: &entries,
-        });
+        let bg = maps.stage_bind_group(ctx, "composite", &self.layout, entries);
         dispatch(
             enc,
             "composite",

@@ -13,14 +13,7 @@ pub(crate) struct ShadowFrustum {
 
 impl ShadowFrustum {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let mut entries = vec![storage_entry(0, false)];
-        entries.extend(ShadowMaps::layout_entries());
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("shadow frustum"),
-                entries: &entries,
-            });
+        let layout = ShadowMaps::stage_layout(ctx, "shadow frustum", vec![storage_entry(0, false)]);
         let module = super::stage_shader(
             ctx,
             "shadow_frustum",
@@ -49,17 +42,11 @@ impl ShadowFrustum {
         maps: &ShadowMaps,
         ts: &Timestamps,
     ) {
-        let map_views = maps.views();
-        let mut entries = vec![wgpu::BindGroupEntry {
+        let own = vec![wgpu::BindGroupEntry {
             binding: 0,
             resource: volumes.frustum.as_entire_binding(),
         }];
-        entries.extend(maps.entries(&map_views));
-        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("shadow frustum"),
-            layout: &self.layout,
-            entries: &entries,
-        });
+        let bg = maps.stage_bind_group(ctx, "shadow frustum", &self.layout, own);
         dispatch(
             enc,
             "shadow_frustum",

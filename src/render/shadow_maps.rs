@@ -321,14 +321,42 @@ impl ShadowMaps {
             })
     }
 
-    /// Views of the static and the movers' depth arrays, for [`Self::entries`].
-    pub(crate) fn views(&self) -> (wgpu::TextureView, wgpu::TextureView) {
-        (self.scene_maps.view(), self.mover_maps.view())
+    /// The bind-group layout of a compute stage that reads the maps: the stage's own
+    /// `entries`, then the maps' at bindings 5–8 (`shaders/shadow_lookup.wgsl`).
+    pub(crate) fn stage_layout(
+        ctx: &GpuContext,
+        label: &str,
+        mut entries: Vec<wgpu::BindGroupLayoutEntry>,
+    ) -> wgpu::BindGroupLayout {
+        entries.extend(Self::layout_entries());
+        ctx.device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries: &entries,
+            })
     }
 
-    /// Layout entries 5–8 of a compute stage that reads the maps
-    /// (`shaders/shadow_lookup.wgsl`).
-    pub(crate) fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 4] {
+    /// A bind group for [`Self::stage_layout`]'s `layout`: the stage's own `entries`,
+    /// then this frame's maps.
+    pub(crate) fn stage_bind_group(
+        &self,
+        ctx: &GpuContext,
+        label: &str,
+        layout: &wgpu::BindGroupLayout,
+        entries: Vec<wgpu::BindGroupEntry<'_>>,
+    ) -> wgpu::BindGroup {
+        let views = (self.scene_maps.view(), self.mover_maps.view());
+        let entries: Vec<wgpu::BindGroupEntry> =
+            entries.into_iter().chain(self.entries(&views)).collect();
+        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &entries,
+        })
+    }
+
+    /// Layout entries 5–8: the maps, their sampler and their projections.
+    fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 4] {
         let depth_array = |binding| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -352,8 +380,8 @@ impl ShadowMaps {
         ]
     }
 
-    /// Bind-group entries 5–8 for [`Self::layout_entries`], with `views` from [`Self::views`].
-    pub(crate) fn entries<'a>(
+    /// Bind-group entries 5–8 for [`Self::layout_entries`].
+    fn entries<'a>(
         &'a self,
         views: &'a (wgpu::TextureView, wgpu::TextureView),
     ) -> [wgpu::BindGroupEntry<'a>; 4] {
