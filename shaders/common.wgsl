@@ -29,9 +29,13 @@ struct Frame {
     // Bounds swept by the movers since the last frame (min > max: nothing moved); with
     // FLAG_CACHE, a voxel whose shadow ray to a light crosses them re-traces that light.
     moved_min: vec3f,
-    _pad3: u32,
+    // Lights whose shared media transmittance volume is refilled this frame (bit per
+    // light): every light on the first frame, a light that changed, all of them while
+    // wind moves the media (shaders/media_transmittance.wgsl).
+    transmittance_dirty: u32,
     moved_max: vec3f,
-    _pad4: u32,
+    // Quadrature step of a shadow ray through height or noisy media, metres.
+    media_step_m: f32,
 }
 
 // Frame.flags
@@ -44,6 +48,7 @@ const FLAG_DEMAND: u32 = 32u;    // grid: trace only voxels that froxels request
 const FLAG_CACHE: u32 = 64u;     // grid: keep voxels' light bits until a light changes
 const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (sparse)
 const FLAG_CULL: u32 = 256u;     // demand: froxels behind the depth buffer are not lit (froxel_cull.wgsl)
+const FLAG_MEDIA_T: u32 = 512u;  // transmittance toward lights from the shared volumes (else marched)
 
 struct View {
     view_proj: mat4x4f,
@@ -100,6 +105,29 @@ struct Medium {
 @group(0) @binding(4) var<storage, read> bvh_nodes: array<BvhNode>;
 @group(0) @binding(5) var<storage, read> bvh_tris: array<BvhTriangle>;
 @group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>>;
+// Shared media transmittance toward each light (src/render/media_transmittance.rs): one
+// volume of optical depths per light, filled once per frame for every viewer, read
+// trilinearly.
+@group(0) @binding(7) var<storage, read_write> media_t: array<f32>;
+@group(0) @binding(8) var<storage, read> light_media: array<LightMedia>;
+
+// Light i's transmittance volume: dims.x·dims.y columns of dims.z nodes `spacing` apart,
+// node (x, y, k) at media_t[offset + x + dims.x·(y + dims.y·k)]. A directional light's
+// columns run along its direction of travel through the media's bounding sphere (centre,
+// radius), laid out on the plane across it (`light_basis`). A point or spot light's
+// columns are rays from the light, starting `near` metres out: one per texel of an
+// octahedral map of all directions (`tan_half` = 0: the light is in or near the media),
+// or of a perspective map of the cone around the sphere (tangent of its half angle).
+struct LightMedia {
+    centre: vec3f,
+    radius: f32,
+    dims: vec3u,
+    offset: u32,
+    spacing: f32,
+    nodes: u32,       // 0: no volume (transmittance is marched per sample)
+    near: f32,
+    tan_half: f32,
+}
 
 // counters[]
 const C_GRID_RAYS: u32 = 0u;
@@ -110,6 +138,7 @@ const C_VOXELS_TRACED: u32 = 4u;
 const C_FROXELS_WITH_MEDIA: u32 = 5u;
 const C_VOXELS_NEEDED: u32 = 6u;
 const C_BRICKS: u32 = 7u;        // sparse grid: bricks requested this frame (allocation cursor)
+const C_TRANSMITTANCE_NODES: u32 = 8u; // shared media transmittance nodes filled
 
 // Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a
 // table over all bricks holds 0 (unused), slot + 1 (allocated in the pool) or
@@ -320,6 +349,175 @@ fn sample_media(p: vec3f) -> MediumSample {
     return s;
 }
 
+// Extinction of medium `m` per unit density (grey: mean(σs) + σa, as `sample_media`).
+fn medium_extinction(m: Medium) -> f32 {
+    return (m.scattering.x + m.scattering.y + m.scattering.z) / 3.0 + m.absorption;
+}
+
+// The part [t0, t1] of the segment p + dir·[0, dist] inside medium m's extent (t1 <= t0:
+// none). Constant and height media fill their box (the scene's media bounds).
+fn medium_span(m: Medium, p: vec3f, dir: vec3f, dist: f32) -> vec2f {
+    let inv = 1.0 / select(dir, vec3f(1e-30), abs(dir) < vec3f(1e-30));
+    let a = (m.min - p) * inv;
+    let b = (m.max - p) * inv;
+    let lo = min(a, b);
+    let hi = max(a, b);
+    var t0 = max(max(lo.x, lo.y), max(lo.z, 0.0));
+    var t1 = min(min(hi.x, hi.y), min(hi.z, dist));
+    if m.kind == 3u {
+        let oc = p - (m.min + m.max) * 0.5;
+        let b_half = dot(oc, dir);
+        let disc = b_half * b_half - (dot(oc, oc) - m.radius_or_falloff * m.radius_or_falloff);
+        if disc < 0.0 {
+            return vec2f(1.0, 0.0);
+        }
+        let s = sqrt(disc);
+        t0 = max(t0, -b_half - s);
+        t1 = min(t1, -b_half + s);
+    }
+    return vec2f(t0, t1);
+}
+
+// Most quadrature steps per medium of one shadow-ray march.
+const MAX_MARCH_STEPS: f32 = 32.0;
+
+// Optical depth ∫σt ds along p + dir·[0, dist] (dir unit): exact for homogeneous boxes,
+// spheres and constant media (σt × the length inside), midpoint quadrature with steps of
+// about `frame.media_step_m` through height and noisy media. Zero extinction gives 0 exactly.
+fn media_optical_depth(p: vec3f, dir: vec3f, dist: f32) -> f32 {
+    var tau = 0.0;
+    for (var i = 0u; i < frame.medium_count; i++) {
+        let m = media[i];
+        let sigma = medium_extinction(m);
+        if sigma <= 0.0 {
+            continue;
+        }
+        let span = medium_span(m, p, dir, dist);
+        let len = span.y - span.x;
+        if len <= 0.0 {
+            continue;
+        }
+        if m.kind != 1u && m.noise_frequency <= 0.0 {
+            tau += sigma * len;
+            continue;
+        }
+        let n = clamp(ceil(len / frame.media_step_m), 1.0, MAX_MARCH_STEPS);
+        let h = len / n;
+        var sum = 0.0;
+        for (var k = 0.0; k < n; k += 1.0) {
+            sum += medium_density(m, p + dir * (span.x + (k + 0.5) * h));
+        }
+        tau += sigma * sum * h;
+    }
+    return tau;
+}
+
+// An orthonormal basis (ex, ey) across unit direction n (Duff et al. 2017): the same
+// in the fill and in every lookup, so a directional light's columns need no storage.
+fn light_basis(n: vec3f) -> mat2x3f {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return mat2x3f(vec3f(1.0 + s * n.x * n.x * a, s * b, -s * n.x), vec3f(b, s + n.y * n.y * a, -n.y));
+}
+
+fn sign_not_zero(v: vec2f) -> vec2f {
+    return select(vec2f(-1.0), vec2f(1.0), v >= vec2f(0.0));
+}
+
+// Octahedral map of unit directions onto [−1, 1]² and back.
+fn oct_encode(d: vec3f) -> vec2f {
+    let n = d / (abs(d.x) + abs(d.y) + abs(d.z));
+    if n.z < 0.0 {
+        return (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
+    }
+    return n.xy;
+}
+
+fn oct_decode(e: vec2f) -> vec3f {
+    var n = vec3f(e, 1.0 - abs(e.x) - abs(e.y));
+    if n.z < 0.0 {
+        n = vec3f((1.0 - abs(n.yx)) * sign_not_zero(n.xy), n.z);
+    }
+    return normalize(n);
+}
+
+// The first node of column (x, y) of light `l`'s volume `v`, and the column's unit
+// direction (nodes k lie at start + dir·spacing·k).
+struct MediaColumn {
+    start: vec3f,
+    dir: vec3f,
+}
+
+fn media_column(l: Light, v: LightMedia, xy: vec2u) -> MediaColumn {
+    let e = (vec2f(xy) + 0.5) / vec2f(v.dims.xy) * 2.0 - 1.0;
+    if l.kind == 0u {
+        let b = light_basis(l.direction);
+        let across = vec2f(xy) * v.spacing - v.radius;
+        return MediaColumn(v.centre + b[0] * across.x + b[1] * across.y - l.direction * v.radius, l.direction);
+    }
+    var dir = oct_decode(e);
+    if v.tan_half > 0.0 {
+        let axis = normalize(v.centre - l.position);
+        let b = light_basis(axis);
+        dir = normalize(axis + (b[0] * e.x + b[1] * e.y) * v.tan_half);
+    }
+    return MediaColumn(l.position + dir * v.near, dir);
+}
+
+// Continuous node coordinate of p in light `l`'s volume `v` (nodes at integers).
+fn media_coord(l: Light, v: LightMedia, p: vec3f) -> vec3f {
+    if l.kind == 0u {
+        let b = light_basis(l.direction);
+        let d = p - v.centre;
+        return (vec3f(dot(d, b[0]), dot(d, b[1]), dot(d, l.direction)) + v.radius) / v.spacing;
+    }
+    let d = p - l.position;
+    let r = length(d);
+    var e = oct_encode(d / max(r, 1e-6));
+    if v.tan_half > 0.0 {
+        let axis = normalize(v.centre - l.position);
+        let b = light_basis(axis);
+        // Behind the light (z <= 0) nothing lies in the media's cone: the edge clamps.
+        let z = max(dot(d, axis), 1e-6 * r);
+        e = vec2f(dot(d, b[0]), dot(d, b[1])) / (z * v.tan_half);
+    }
+    return vec3f((e * 0.5 + 0.5) * vec2f(v.dims.xy) - 0.5, (r - v.near) / v.spacing);
+}
+
+// Shared transmittance of light `l` at p: exp(−τ) of the optical depth interpolated
+// trilinearly between the 8 nodes of its volume around p, clamped at the volume's faces
+// (before a column's first node no medium has been crossed; past its last no medium is
+// left). Interpolating τ, not T, keeps a homogeneous medium exact along a column and
+// lets T fall to 0 right behind the face of a dense medium, as it does.
+fn lookup_media_t(l: Light, v: LightMedia, p: vec3f) -> f32 {
+    let g = clamp(media_coord(l, v, p), vec3f(0.0), vec3f(v.dims - 1u));
+    let base = min(vec3u(floor(g)), v.dims - 1u);
+    let f = g - vec3f(base);
+    let top = min(base + 1u, v.dims - 1u);
+    var acc = 0.0;
+    for (var k = 0u; k < 8u; k++) {
+        let o = vec3<bool>((k & 1u) != 0u, (k & 2u) != 0u, (k & 4u) != 0u);
+        let q = select(base, top, o);
+        let w3 = select(1.0 - f, f, o);
+        acc += w3.x * w3.y * w3.z * media_t[v.offset + q.x + v.dims.x * (q.y + v.dims.y * q.z)];
+    }
+    return exp(-acc);
+}
+
+// Transmittance of the media between p and light `li`, T = exp(−∫σt): from the shared
+// volume where there is one, else by marching the shadow ray (`reference`).
+fn light_transmittance(li: u32, p: vec3f) -> f32 {
+    if frame.medium_count == 0u {
+        return 1.0;
+    }
+    if (frame.flags & FLAG_MEDIA_T) != 0u && light_media[li].nodes > 0u {
+        return lookup_media_t(lights[li], light_media[li], p);
+    }
+    let tl = to_light(lights[li], p);
+    return exp(-media_optical_depth(p, tl.xyz, tl.w));
+}
+
 // Henyey-Greenstein; cos_theta between the light's travel direction and the scattered one.
 fn hg_phase(g: f32, cos_theta: f32) -> f32 {
     // 1 + g² − 2g·cosθ as two non-negative terms (precise near g → ±1; see media.rs).
@@ -330,7 +528,8 @@ fn hg_phase(g: f32, cos_theta: f32) -> f32 {
 }
 
 // In-scattered radiance per metre at `p` seen along `view_dir`, given the visibility
-// of each light (0..1). Ambient light is isotropic (phase integrates to 1).
+// of each light by opaque geometry (0..1); the light is dimmed by the media it crossed
+// on its way to p (`light_transmittance`). Ambient light is isotropic (phase integrates to 1).
 fn in_scattering(m: MediumSample, p: vec3f, view_dir: vec3f, vis: array<f32, 8>) -> vec3f {
     var l_in = frame.ambient;
     for (var i = 0u; i < frame.light_count; i++) {
@@ -339,7 +538,7 @@ fn in_scattering(m: MediumSample, p: vec3f, view_dir: vec3f, vis: array<f32, 8>)
         }
         let l = lights[i];
         let wl = -to_light(l, p).xyz;
-        l_in += light_radiance(l, p) * hg_phase(m.g, dot(wl, -view_dir)) * vis[i];
+        l_in += light_radiance(l, p) * hg_phase(m.g, dot(wl, -view_dir)) * (vis[i] * light_transmittance(i, p));
     }
     return m.scattering * l_in + m.emission;
 }

@@ -1,5 +1,6 @@
 // Composite + tone map, all viewers in one dispatch: surface shading (directional lights
-// from the shared shadow maps when there are any, other lights by a shadow ray), then
+// from the shared shadow maps when there are any, other lights by a shadow ray; every
+// light dimmed by the media between it and the surface), then
 // `surface × transmittance + in-scattered` from the integrated volume at the pixel's
 // depth (000 §3.1.4), ACES-fitted tone curve, sRGB, RGBA8 out.
 
@@ -82,13 +83,16 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
                 continue;
             }
             let m = map_info[li];
+            var vis = 0.0;
             if m.scene.layer >= 0 {
-                irradiance += radiance * ndl * map_visibility(m, p, n, 0.75);
-                continue;
+                vis = map_visibility(m, p, n, 0.75);
+            } else {
+                *rays += 1u;
+                vis = select(0.0, 1.0, light_visible(l, origin));
             }
-            *rays += 1u;
-            if light_visible(l, origin) {
-                irradiance += radiance * ndl;
+            // The light crossed the media on its way to the surface.
+            if vis > 0.0 {
+                irradiance += radiance * (ndl * vis * light_transmittance(li, origin));
             }
         }
         color = albedo / PI * irradiance;

@@ -123,6 +123,14 @@ struct SettingsArgs {
     /// and light, like reference).
     #[arg(long, default_value_t = Settings::default().shadow_map_px)]
     shadow_map: u32,
+    /// Node spacing in metres of the shared volumes of media transmittance toward each
+    /// light (mode shared; 0: every froxel and pixel marches its shadow ray through the
+    /// media, like reference).
+    #[arg(long, default_value_t = Settings::default().transmittance_voxel_m)]
+    transmittance_voxel: f32,
+    /// Quadrature step in metres of a shadow ray through height and noisy media.
+    #[arg(long, default_value_t = Settings::default().media_step_m)]
+    media_step: f32,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -159,6 +167,8 @@ impl SettingsArgs {
             cache: self.cache,
             brick_pool: self.brick_pool,
             shadow_map_px: self.shadow_map,
+            transmittance_voxel_m: self.transmittance_voxel,
+            media_step_m: self.media_step,
         }
     }
 }

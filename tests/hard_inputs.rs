@@ -215,7 +215,7 @@ fn render_shot(case: &str, scene: &Scene, shot: &Shot, agreement: Agreement) -> 
         0.5,
         TruthSettings {
             steps: TRUTH_STEPS,
-            seed: 0,
+            ..TruthSettings::default()
         },
         &|_, _| {},
     );

@@ -14,7 +14,7 @@ pub struct BenchVariant {
 }
 
 /// Keys of a `--variant` string, with what each takes (shown in errors).
-const KEYS: [(&str, &str); 14] = [
+const KEYS: [(&str, &str); 16] = [
     ("mode", "reference|shared"),
     ("voxel", "grid voxel edge in metres, e.g. 0.5"),
     ("lookup", "nearest|trilinear"),
@@ -37,6 +37,14 @@ const KEYS: [(&str, &str); 14] = [
     (
         "map",
         "surface shadow map texels a side for directional lights (0: rays)",
+    ),
+    (
+        "tvoxel",
+        "node spacing of the shared media transmittance volumes in metres (0: march per sample)",
+    ),
+    (
+        "media_step",
+        "shadow-ray quadrature step through media, metres",
     ),
 ];
 
@@ -142,6 +150,8 @@ pub fn parse_variant(spec: &str, scene_voxel_size_m: f32) -> anyhow::Result<Benc
             "cache" => s.cache = switch().ok_or_else(bad)?,
             "pool" => s.brick_pool = count().ok_or_else(bad)?,
             "map" => s.shadow_map_px = count().ok_or_else(bad)?,
+            "tvoxel" => s.transmittance_voxel_m = number().ok_or_else(bad)?,
+            "media_step" => s.media_step_m = number().ok_or_else(bad)?,
             _ => unreachable!("every key of KEYS is matched"),
         }
     }

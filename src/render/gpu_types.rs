@@ -12,9 +12,10 @@ pub(crate) const FLAG_DEMAND: u32 = 32;
 pub(crate) const FLAG_CACHE: u32 = 64;
 pub(crate) const FLAG_SPARSE: u32 = 128;
 pub(crate) const FLAG_CULL: u32 = 256;
+pub(crate) const FLAG_MEDIA_T: u32 = 512;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
-pub(crate) const COUNTERS: usize = 8;
+pub(crate) const COUNTERS: usize = 9;
 pub(crate) const C_GRID_RAYS: usize = 0;
 pub(crate) const C_FRUSTUM_RAYS: usize = 1;
 pub(crate) const C_LIGHTING_RAYS: usize = 2;
@@ -23,6 +24,7 @@ pub(crate) const C_VOXELS_TRACED: usize = 4;
 pub(crate) const C_FROXELS_WITH_MEDIA: usize = 5;
 pub(crate) const C_VOXELS_NEEDED: usize = 6;
 pub(crate) const C_BRICKS: usize = 7;
+pub(crate) const C_TRANSMITTANCE_NODES: usize = 8;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -48,9 +50,9 @@ pub(crate) struct FrameGpu {
     pub pool_capacity: u32,
     pub mover_root: u32,
     pub moved_min: [f32; 3],
-    pub _pad3: u32,
+    pub transmittance_dirty: u32,
     pub moved_max: [f32; 3],
-    pub _pad4: u32,
+    pub media_step_m: f32,
 }
 
 #[repr(C)]
@@ -99,6 +101,20 @@ impl From<&Light> for LightGpu {
             cos_inner: l.cos_inner,
         }
     }
+}
+
+/// One light's shared media transmittance volume (`LightMedia` in common.wgsl).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub(crate) struct LightMediaGpu {
+    pub centre: [f32; 3],
+    pub radius: f32,
+    pub dims: [u32; 3],
+    pub offset: u32,
+    pub spacing: f32,
+    pub nodes: u32,
+    pub near: f32,
+    pub tan_half: f32,
 }
 
 #[repr(C)]
@@ -150,3 +166,4 @@ const _: () = assert!(std::mem::size_of::<FrameGpu>() == 144);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 240);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 96);
+const _: () = assert!(std::mem::size_of::<LightMediaGpu>() == 48);

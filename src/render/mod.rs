@@ -11,6 +11,7 @@ mod gbuffer;
 mod gpu_types;
 #[cfg(test)]
 mod history_tests;
+mod media_transmittance;
 mod ray_query;
 mod scene_gpu;
 mod shadow_frustum;
@@ -112,6 +113,24 @@ pub struct Settings {
     /// `reference` always does.
     #[serde(default)]
     pub shadow_map_px: u32,
+    /// Node spacing of the shared media transmittance volumes, metres (`shared` only):
+    /// T toward each light computed once per frame for all viewers, cached while media
+    /// and light are static (src/render/media_transmittance.rs). 0: every froxel and
+    /// pixel marches its own shadow ray through the media, as `reference` does.
+    #[serde(default = "default_transmittance_voxel_m")]
+    pub transmittance_voxel_m: f32,
+    /// Quadrature step of a shadow ray through height and noisy media, metres (at most
+    /// 32 steps per medium; homogeneous media are integrated exactly).
+    #[serde(default = "default_media_step_m")]
+    pub media_step_m: f32,
+}
+
+fn default_transmittance_voxel_m() -> f32 {
+    0.5
+}
+
+fn default_media_step_m() -> f32 {
+    0.5
 }
 
 impl Default for Settings {
@@ -133,6 +152,8 @@ impl Default for Settings {
             cache: true,
             brick_pool: 0,
             shadow_map_px: 4096,
+            transmittance_voxel_m: default_transmittance_voxel_m(),
+            media_step_m: default_media_step_m(),
         }
     }
 }
@@ -176,6 +197,17 @@ impl Settings {
             self.shadow_map_px
         );
         anyhow::ensure!(
+            self.transmittance_voxel_m == 0.0
+                || (self.transmittance_voxel_m.is_finite() && self.transmittance_voxel_m >= 0.01),
+            "transmittance voxel {} m: must be 0 (march per sample) or at least 0.01 m",
+            self.transmittance_voxel_m
+        );
+        anyhow::ensure!(
+            self.media_step_m.is_finite() && self.media_step_m >= 0.01,
+            "media step {} m: must be at least 0.01 m",
+            self.media_step_m
+        );
+        anyhow::ensure!(
             self.depth_curve.is_finite() && (0.01..=20.0).contains(&self.depth_curve),
             "depth curve {}: must be 0.01..=20",
             self.depth_curve
@@ -209,11 +241,13 @@ pub(crate) enum Stage {
     Composite = 5,
     GridRequests = 6,
     ShadowMaps = 7,
+    MediaTransmittance = 8,
 }
 
-const STAGES: [(Stage, &str); 8] = [
+const STAGES: [(Stage, &str); 9] = [
     (Stage::GBuffer, "gbuffer"),
     (Stage::ShadowMaps, "shadow_maps"),
+    (Stage::MediaTransmittance, "media_transmittance"),
     (Stage::GridRequests, "grid_requests"),
     (Stage::SharedGrid, "shared_grid"),
     (Stage::ShadowFrustum, "shadow_frustum"),
@@ -316,6 +350,7 @@ pub struct Renderer {
     frustum: shadow_frustum::ShadowFrustum,
     cull: froxel_cull::FroxelCull,
     shadow_maps: shadow_maps::ShadowMaps,
+    transmittance: media_transmittance::MediaTransmittance,
     lighting: froxel_lighting::FroxelLighting,
     integration: volume_integration::VolumeIntegration,
     composite: composite::Composite,
@@ -357,7 +392,15 @@ impl Renderer {
         settings: Settings,
     ) -> anyhow::Result<Renderer> {
         settings.validate()?;
-        let scene_gpu = scene_gpu::SceneGpu::new(&ctx, &scene, bvh)?;
+        let light_media = media_transmittance::plan(
+            &scene,
+            if settings.mode == Mode::Shared {
+                settings.transmittance_voxel_m
+            } else {
+                0.0
+            },
+        );
+        let scene_gpu = scene_gpu::SceneGpu::new(&ctx, &scene, bvh, &light_media)?;
         let grid = match (settings.mode, scene.media_bounds()) {
             (Mode::Shared, Some(bounds)) if !scene.lights.is_empty() => {
                 Some(SharedShadowGrid::new(
@@ -401,6 +444,12 @@ impl Renderer {
                 } else {
                     0
                 },
+            ),
+            transmittance: media_transmittance::MediaTransmittance::new(
+                &ctx,
+                &scene_gpu.layout,
+                &scene,
+                &light_media,
             ),
             lighting: froxel_lighting::FroxelLighting::new(&ctx, &scene_gpu.layout),
             integration: volume_integration::VolumeIntegration::new(&ctx, &scene_gpu.layout),
@@ -484,7 +533,9 @@ impl Renderer {
         Ok(())
     }
 
-    fn upload(&mut self, cameras: &[Camera], time_s: f32) -> anyhow::Result<(u32, bool)> {
+    /// Writes the frame's uniforms; returns the flags, whether the scene has media, and
+    /// the lights whose media transmittance is refilled this frame.
+    fn upload(&mut self, cameras: &[Camera], time_s: f32) -> anyhow::Result<(u32, bool, u32)> {
         let scene = &self.scene;
         let s = &self.settings;
         let vol = self
@@ -558,6 +609,9 @@ impl Renderer {
         if s.cache && s.brick_pool == 0 {
             flags |= FLAG_CACHE;
         }
+        if self.transmittance.in_use() {
+            flags |= FLAG_MEDIA_T;
+        }
         // Only where the culling passes run: a grid exists (media and lights).
         if s.culls_hidden_froxels() && self.grid.is_some() && !scene.lights.is_empty() {
             flags |= FLAG_CULL;
@@ -577,6 +631,7 @@ impl Renderer {
             self.scene_gpu.write_lights(&self.ctx, &lights);
         }
         self.lights_uploaded = Some(lights);
+        let transmittance_dirty = self.transmittance.dirty(dirty_lights);
         // Movers: their tree and vertices at this time, and the bounds they swept since
         // the last frame (what cached grid bits must be re-checked against).
         let mover_root = self.scene_gpu.write_movers(&self.ctx, scene, time_s)?;
@@ -619,9 +674,9 @@ impl Renderer {
             pool_capacity: s.brick_pool,
             mover_root,
             moved_min: moved.0.to_array(),
-            _pad3: 0,
+            transmittance_dirty,
             moved_max: moved.1.to_array(),
-            _pad4: 0,
+            media_step_m: s.media_step_m,
         };
         self.scene_gpu.ensure_views(&self.ctx, cameras.len())?;
         self.ctx
@@ -630,7 +685,7 @@ impl Renderer {
         self.ctx
             .queue
             .write_buffer(&self.scene_gpu.views, 0, bytemuck::cast_slice(&views));
-        Ok((flags, has_media))
+        Ok((flags, has_media, transmittance_dirty))
     }
 
     /// Renders one frame for every camera (all the same size) at scene time `time_s`.
@@ -659,7 +714,7 @@ impl Renderer {
         }
         let started = Instant::now();
         self.ensure_volumes(cameras.len(), width, height)?;
-        let (flags, has_media) = self.upload(cameras, time_s)?;
+        let (flags, has_media, transmittance_dirty) = self.upload(cameras, time_s)?;
         let ctx = self.ctx.clone();
         let has_lights = !self.scene.lights.is_empty();
         let shared = self.settings.mode == Mode::Shared;
@@ -695,6 +750,14 @@ impl Renderer {
             &self.timestamps,
         ) {
             dispatches.push(("shadow_maps", [0, 0, 0]));
+        }
+        // Media transmittance toward the lights: world space, before any viewer reads it;
+        // skipped when no light's volume is stale.
+        if self
+            .transmittance
+            .add_pass(&mut enc, scene_bg, transmittance_dirty, &self.timestamps)
+        {
+            dispatches.push(("media_transmittance", self.transmittance.workgroups()));
         }
         // Passes with no work are skipped: no media means no froxel stages at all, and
         // no lights means no shadow rays.

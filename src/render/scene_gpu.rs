@@ -1,6 +1,6 @@
 //! Scene data on the GPU, shared by every stage (bind group 0) and the raster.
 
-use super::gpu_types::{FrameGpu, LightGpu, MediumGpu, ViewGpu, COUNTERS};
+use super::gpu_types::{FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ViewGpu, COUNTERS};
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, GpuBvhNode, GpuTriangle, Scene, TriangleMesh};
 use glam::Vec3;
@@ -103,6 +103,10 @@ pub(crate) struct SceneGpu {
     media: wgpu::Buffer,
     nodes: wgpu::Buffer,
     tris: wgpu::Buffer,
+    /// Shared media transmittance toward each light (media_transmittance.rs) and the
+    /// volumes' headers.
+    media_t: wgpu::Buffer,
+    light_media: wgpu::Buffer,
     /// Nodes, triangles and raster vertices of the static scene; the movers' follow.
     static_nodes: u32,
     static_tris: u32,
@@ -173,7 +177,13 @@ impl SceneGpu {
         Ok(self.static_nodes)
     }
 
-    pub(crate) fn new(ctx: &GpuContext, scene: &Scene, bvh: &Bvh) -> anyhow::Result<SceneGpu> {
+    /// `light_media`: the media transmittance volumes' layout (`media_transmittance::plan`).
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene: &Scene,
+        bvh: &Bvh,
+        light_media: &[LightMediaGpu],
+    ) -> anyhow::Result<SceneGpu> {
         let lights: Vec<LightGpu> = scene.lights.iter().map(LightGpu::from).collect();
         let media: Vec<MediumGpu> = scene.media.iter().map(MediumGpu::from).collect();
         let frame = ctx.storage(
@@ -210,7 +220,17 @@ impl SceneGpu {
         tri_data.resize(tri_data.len() + movers.len(), GpuTriangle::default());
         let nodes = ctx.storage_init("bvh nodes", &node_data, wgpu::BufferUsages::COPY_DST);
         let tris = ctx.storage_init("bvh triangles", &tri_data, wgpu::BufferUsages::COPY_DST);
-        let layout = ctx.storage_layout("scene", &[false, false, false, false, false, false, true]);
+        let media_t_bytes = super::media_transmittance::bytes(light_media);
+        let media_t = ctx.storage(
+            "media transmittance",
+            media_t_bytes,
+            wgpu::BufferUsages::empty(),
+        )?;
+        let light_media = ctx.storage_init("light media", light_media, wgpu::BufferUsages::empty());
+        let layout = ctx.storage_layout(
+            "scene",
+            &[false, false, false, false, false, false, true, true, false],
+        );
 
         // Raster vertices and indices: the static mesh in clusters, then the movers (whose
         // vertices are rewritten every frame).
@@ -227,17 +247,30 @@ impl SceneGpu {
         );
         let indices = ctx.storage_init("indices", &idx, wgpu::BufferUsages::INDEX);
 
-        let memory = vec![
+        let mut memory = vec![
             ("bvh_nodes", nodes.size()),
             ("bvh_triangles", tris.size()),
             ("raster_vertices", vertices.size()),
             ("raster_indices", indices.size()),
             ("lights_media", lights.size() + media.size()),
         ];
+        if media_t_bytes > 0 {
+            memory.push(("media_transmittance", media_t.size()));
+        }
         let bind_group = ctx.bind_buffers(
             "scene",
             &layout,
-            &[&frame, &views, &lights, &media, &nodes, &tris, &counters],
+            &[
+                &frame,
+                &views,
+                &lights,
+                &media,
+                &nodes,
+                &tris,
+                &counters,
+                &media_t,
+                &light_media,
+            ],
         );
         Ok(SceneGpu {
             frame,
@@ -255,6 +288,8 @@ impl SceneGpu {
             media,
             nodes,
             tris,
+            media_t,
+            light_media,
             static_nodes: bvh.gpu_nodes.len() as u32,
             static_tris: bvh.gpu_triangles.len() as u32,
             static_vertices: scene.mesh.positions.len() as u32,
@@ -284,6 +319,8 @@ impl SceneGpu {
                 &self.nodes,
                 &self.tris,
                 &self.counters,
+                &self.media_t,
+                &self.light_media,
             ],
         );
         Ok(())

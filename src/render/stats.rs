@@ -75,6 +75,10 @@ pub struct FrameStats {
     pub voxels_needed: u64,
     /// Froxels with non-zero media (the rest skip shadow work).
     pub froxels_with_media: u64,
+    /// Nodes of the shared media transmittance volumes refilled this frame (0 in a
+    /// static scene after the first frame, and always in `reference`, which marches).
+    #[serde(default)]
+    pub transmittance_nodes: u64,
     /// Bytes of the light masks of a dense grid over the media box (what a sparse grid
     /// avoids; equal to the grid's words when dense).
     pub grid_dense_bytes: u64,
@@ -157,6 +161,7 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         voxels_traced: c(C_VOXELS_TRACED),
         voxels_needed: c(C_VOXELS_NEEDED),
         froxels_with_media: c(C_FROXELS_WITH_MEDIA),
+        transmittance_nodes: c(C_TRANSMITTANCE_NODES),
         grid_dense_bytes: i.grid.map_or(0, |g| g.dense_bytes()),
         grid_pool_bricks: i.grid.map_or(0, |g| g.pool_capacity() as u64),
         grid_bricks_requested: if i.grid.is_some_and(|g| g.is_sparse()) {
