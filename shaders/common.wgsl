@@ -518,6 +518,23 @@ fn light_transmittance(li: u32, p: vec3f) -> f32 {
     return exp(-media_optical_depth(p, tl.xyz, tl.w));
 }
 
+// As `light_transmittance`, for a point on a surface. Media often end where geometry
+// begins (fog filling a room down to its floor): beyond that face a column's optical
+// depth stops growing, so the trilinear lookup of a point just inside the face mixes in
+// nodes outside and comes out too low (the floor too bright by ~σt·spacing). The volume
+// is read a few spacings towards the light instead, where every node around the point
+// is inside, and the rest of the way, that short segment, is integrated exactly.
+fn surface_transmittance(li: u32, p: vec3f) -> f32 {
+    if frame.medium_count == 0u || (frame.flags & FLAG_MEDIA_T) == 0u || light_media[li].nodes == 0u {
+        return light_transmittance(li, p);
+    }
+    let l = lights[li];
+    let tl = to_light(l, p);
+    let back = min(3.0 * light_media[li].spacing, tl.w);
+    let q = p + tl.xyz * back;
+    return lookup_media_t(l, light_media[li], q) * exp(-media_optical_depth(p, tl.xyz, back));
+}
+
 // Henyey-Greenstein; cos_theta between the light's travel direction and the scattered one.
 fn hg_phase(g: f32, cos_theta: f32) -> f32 {
     // 1 + g² − 2g·cosθ as two non-negative terms (precise near g → ±1; see media.rs).

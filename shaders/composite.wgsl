@@ -92,7 +92,7 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
             }
             // The light crossed the media on its way to the surface.
             if vis > 0.0 {
-                irradiance += radiance * (ndl * vis * light_transmittance(li, origin));
+                irradiance += radiance * (ndl * vis * surface_transmittance(li, origin));
             }
         }
         color = albedo / PI * irradiance;

@@ -33,6 +33,11 @@ pub struct EvalConfig {
     pub frames: u32,
     /// Ray-march steps of `truth`.
     pub truth_steps: u32,
+    /// Primary rays per pixel of `truth` (box filter over the pixel).
+    pub truth_spp: u32,
+    /// Node spacings of the media transmittance volumes to compare besides `shared`'s
+    /// default, metres (0: marched per sample).
+    pub transmittance_voxels_m: Vec<f32>,
     /// Scene time of the evaluated frame, seconds.
     pub time_s: f32,
     /// Output folder.
@@ -165,10 +170,15 @@ fn variant_name(s: &Settings) -> String {
     } else {
         String::new()
     };
+    let transmittance = match s.transmittance_voxel_m {
+        t if t == Settings::default().transmittance_voxel_m => String::new(),
+        0.0 => " T-marched".into(),
+        t => format!(" T-{t}m"),
+    };
     let name = match s.mode {
         Mode::Reference => "reference".into(),
         Mode::Shared => format!(
-            "shared {}m {}{}{}{}{}{}",
+            "shared {}m {}{}{}{}{}{}{transmittance}",
             s.voxel_size_m,
             if s.trilinear { "trilinear" } else { "nearest" },
             if s.parity { " parity" } else { "" },
@@ -200,6 +210,7 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
     progress("truth (CPU): with media");
     let ts = TruthSettings {
         steps: cfg.truth_steps,
+        spp: cfg.truth_spp,
         ..TruthSettings::default()
     };
     let truth_started = std::time::Instant::now();
@@ -274,6 +285,20 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
             shadow_map_px,
             ..base
         });
+    }
+    // The media transmittance toward the lights at other node spacings, or marched per
+    // froxel and pixel (0), on top of `shared`'s defaults.
+    for &transmittance_voxel_m in &cfg.transmittance_voxels_m {
+        if transmittance_voxel_m != Settings::default().transmittance_voxel_m {
+            variants.push(Settings {
+                mode: Mode::Shared,
+                transmittance_voxel_m,
+                ..Settings {
+                    voxel_size_m: base.voxel_size_m,
+                    ..Settings::default()
+                }
+            });
+        }
     }
     for &depth_curve in &cfg.depth_curves {
         if depth_curve != base.depth_curve {
@@ -395,7 +420,7 @@ fn write_report(
     crate::output::write_json(&cfg.out.join("eval.json"), &rows)?;
     let md = format!(
         "# eval: {scene}\n\n`{cmd}`\n\n{n} viewer(s) at {w}×{h}, evaluated frame at t = {t:.2} s after {f} walk-in frame(s); \
-         truth: {steps} steps/pixel, {truth_rays} shadow rays, {truth_s:.1} s on the CPU. Times are GPU timestamps \
+         truth: {steps} steps and {spp} ray(s)/pixel, {truth_rays} shadow rays, {truth_s:.1} s on the CPU. Times are GPU timestamps \
          (median over the walk-in frames after the first) on `{adapter}`.\n\n{table}",
         scene = scene.name,
         cmd = cfg.command,
@@ -405,6 +430,7 @@ fn write_report(
         t = cfg.time_s,
         f = cfg.frames,
         steps = cfg.truth_steps,
+        spp = cfg.truth_spp,
         truth_s = truth_ms / 1e3,
         adapter = GpuContext::last_adapter_name(),
         table = t.to_markdown()

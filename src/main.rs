@@ -59,6 +59,14 @@ struct EvalArgs {
     /// Ray-march steps per pixel of the truth renderer.
     #[arg(long, default_value_t = TruthSettings::default().steps)]
     truth_steps: u32,
+    /// Primary rays per pixel of the truth renderer, stratified over the pixel and
+    /// averaged (a box filter, as offline renderers report pixels); 1: the pixel centre.
+    #[arg(long, default_value_t = TruthSettings::default().spp)]
+    truth_spp: u32,
+    /// Node spacings of the shared media transmittance volumes to compare besides the
+    /// default, metres (0: every froxel and pixel marches its shadow ray).
+    #[arg(long, value_delimiter = ',', default_value = "0,0.25,1")]
+    transmittance_voxels: Vec<f32>,
     /// Scene time of the evaluated frame, seconds.
     #[arg(long, default_value_t = 2.0)]
     time: f32,
@@ -79,6 +87,9 @@ struct SettingsArgs {
     /// Ray-march segments per pixel of mode `truth`.
     #[arg(long, default_value_t = TruthSettings::default().steps)]
     truth_steps: u32,
+    /// Primary rays per pixel of mode `truth`, stratified over the pixel and averaged.
+    #[arg(long, default_value_t = TruthSettings::default().spp)]
+    truth_spp: u32,
     /// Shared grid voxel size in metres (default: the scene's).
     #[arg(long)]
     voxel_size: Option<f32>,
@@ -300,6 +311,7 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
     let cameras = scene.camera.viewers(a.viewers, a.time);
     let settings = TruthSettings {
         steps: a.settings.truth_steps,
+        spp: a.settings.truth_spp,
         ..TruthSettings::default()
     };
     anyhow::ensure!(
@@ -357,6 +369,8 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         voxel_sizes_m: a.voxel_sizes,
         frames: a.frames,
         truth_steps: a.truth_steps,
+        truth_spp: a.truth_spp,
+        transmittance_voxels_m: a.transmittance_voxels,
         time_s: a.time,
         depth_curves: a.depth_curves,
         out: a.out.clone(),

@@ -446,7 +446,8 @@ absorption = 0.0
     let scene = standard_with_medium(medium);
     let mut bare = scene.clone();
     bare.media.clear();
-    // Only surfaces are left to disagree on.
+    // Only surfaces are left to disagree on. The sun's light reaches them through the
+    // σt = 0 medium with T = exp(−0) = 1 exactly: bit-identical images below.
     let out = render_all("extinction 0", &scene, flip(0.02, 0.02));
     let without = render_all("extinction 0, no medium", &bare, flip(0.02, 0.02));
     for (r, plain) in out.gpu.iter().zip(&without.gpu) {
@@ -798,6 +799,117 @@ fn point_light_at_a_voxel_centre() {
     let centre = grid_min + (Vec3::new(16.0, 4.0, 20.0) + 0.5) * voxel;
     let scene = with_point_light_at(&STANDARD, centre, base.origin);
     let out = render_all("point light at a voxel centre", &scene, flip(0.07, 0.07));
+    assert_fog_lit(&out, 0.05);
+}
+
+/// Mean FLIP between two renders of the same shot (every mode: truth, then the GPU's).
+fn mean_flip_between(a: &Outcome, b: &Outcome, w: u32, h: u32) -> Vec<(String, f64)> {
+    let pairs = std::iter::once(("truth".to_string(), &a.truth, &b.truth)).chain(
+        a.gpu
+            .iter()
+            .zip(&b.gpu)
+            .map(|(x, y)| (format!("{:?}", x.mode), &x.frame.images, &y.frame.images)),
+    );
+    pairs
+        .map(|(mode, x, y)| {
+            let f = x
+                .iter()
+                .zip(y)
+                .map(|(i, j)| compare(i, j, w, h).expect("same size").flip_mean)
+                .sum::<f64>()
+                / x.len() as f64;
+            (mode, f)
+        })
+        .collect()
+}
+
+#[test]
+fn extinction_1e4_between_the_sun_and_the_fog() {
+    // A 0.25 m sheet of σt = 10⁴ m⁻¹ above everything: τ toward the sun is ~2600, so
+    // T underflows to exactly 0 (not NaN) and the fog and ground below it are lit by
+    // the ambient light alone, exactly as if there were no sun.
+    let sheet = r#"
+[[medium]]
+kind = "box"
+min = [-16.0, 5.0, -16.0]
+max = [16.0, 5.25, 16.0]
+scattering = [10000.0, 10000.0, 10000.0]
+absorption = 0.0
+"#;
+    let sunlit = load(&scene_text(&[
+        RENDER,
+        GEOMETRY,
+        CAMERA_LOOKING_IN,
+        SUN,
+        FOG,
+        sheet,
+    ]));
+    let unlit = load(&scene_text(&[RENDER, GEOMETRY, CAMERA_LOOKING_IN, FOG, sheet]));
+    let out = render_all("σt = 1e4 toward the sun", &sunlit, flip(0.09, 0.09));
+    let dark = render_all("σt = 1e4 sheet, no sun", &unlit, flip(0.09, 0.09));
+    for (mode, f) in mean_flip_between(&out, &dark, WIDTH, HEIGHT) {
+        println!("σt = 1e4 toward the sun ({mode}): mean FLIP vs no sun {f:.4}");
+        assert!(f <= 0.005, "{mode}: the sun leaks through σt = 1e4 (FLIP {f:.4})");
+    }
+}
+
+#[test]
+fn point_light_inside_dense_fog() {
+    // A lamp inside a 1.5 m ball of σt = 5 m⁻¹ fog within the dusty air: its light
+    // leaves the ball dimmed by e^{-7.5}; the ball glows, the room stays dark.
+    let ball = r#"
+[[medium]]
+kind = "sphere"
+center = [0.0, 2.0, 2.0]
+radius = 1.5
+scattering = [4.5, 4.5, 4.5]
+absorption = 0.5
+g = 0.2
+"#;
+    let scene = load(&scene_text(&[
+        RENDER,
+        GEOMETRY,
+        CAMERA_LOOKING_IN,
+        FOG,
+        POINT_LIGHT,
+        ball,
+    ]));
+    let lamp_alone = load(&scene_text(&[
+        RENDER,
+        GEOMETRY,
+        CAMERA_LOOKING_IN,
+        FOG,
+        POINT_LIGHT,
+    ]));
+    let out = render_all("point light inside dense fog", &scene, flip(0.09, 0.09));
+    let bare = render_all("point light in the dusty air", &lamp_alone, flip(0.08, 0.08));
+    assert_fog_lit(&out, 0.05);
+    // The ball takes the lamp's light from the rest of the room: darker on average.
+    for (a, b) in out.gpu.iter().zip(&bare.gpu) {
+        let (la, lb) = (mean_luma(&a.frame.images[0]), mean_luma(&b.frame.images[0]));
+        println!("point light inside dense fog ({:?}): mean luma {la:.4} vs {lb:.4} without the ball", a.mode);
+        assert!(la < lb, "{:?}: the dense ball does not dim the room", a.mode);
+    }
+}
+
+#[test]
+fn point_light_10_km_away() {
+    // A lamp 10 km away (as bright there as the sun): its 10 km shadow rays cross the
+    // fog only inside the fog's box; the shared volume maps only the cone around it.
+    let far_lamp = r#"
+[[light]]
+kind = "point"
+position = [3000.0, 6000.0, 7800.0]
+intensity = 5.0e8
+"#;
+    let scene = load(&scene_text(&[
+        RENDER,
+        GEOMETRY,
+        CAMERA_LOOKING_IN,
+        FOG,
+        far_lamp,
+    ]));
+    let out = render_all("point light 10 km away", &scene, flip(0.06, 0.07));
     assert_fog_lit(&out, 0.05);
 }
 

@@ -36,7 +36,8 @@ use std::sync::Arc;
 
 /// The stages of paper 000 §3.1 (the fog): what the paper's tables time. The others
 /// (`gbuffer`, `composite`) cost the same in every mode.
-pub const FOG_STAGES: [&str; 5] = [
+pub const FOG_STAGES: [&str; 6] = [
+    "media_transmittance",
     "grid_requests",
     "shared_grid",
     "shadow_frustum",
