@@ -197,6 +197,11 @@ fn variant_name(s: &Settings) -> String {
 
 /// Runs the whole evaluation and writes `eval.md`, `eval.csv`, `eval.json` and plots.
 pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<Vec<EvalRow>> {
+    anyhow::ensure!(
+        (1..=1024).contains(&cfg.truth_spp),
+        "--truth-spp {}: must be 1..=1024",
+        cfg.truth_spp
+    );
     std::fs::create_dir_all(&cfg.out)?;
     let scene = Arc::new(Scene::load(&cfg.scene)?);
     let mut bare = (*scene).clone();

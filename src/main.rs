@@ -319,6 +319,11 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
         "--truth-steps {}: must be 1..=65536",
         settings.steps
     );
+    anyhow::ensure!(
+        (1..=1024).contains(&settings.spp),
+        "--truth-spp {}: must be 1..=1024",
+        settings.spp
+    );
     let (images, counts) = render_truth(
         scene,
         &bvh,
