@@ -844,12 +844,21 @@ absorption = 0.0
         FOG,
         sheet,
     ]));
-    let unlit = load(&scene_text(&[RENDER, GEOMETRY, CAMERA_LOOKING_IN, FOG, sheet]));
+    let unlit = load(&scene_text(&[
+        RENDER,
+        GEOMETRY,
+        CAMERA_LOOKING_IN,
+        FOG,
+        sheet,
+    ]));
     let out = render_all("σt = 1e4 toward the sun", &sunlit, flip(0.09, 0.09));
     let dark = render_all("σt = 1e4 sheet, no sun", &unlit, flip(0.09, 0.09));
     for (mode, f) in mean_flip_between(&out, &dark, WIDTH, HEIGHT) {
         println!("σt = 1e4 toward the sun ({mode}): mean FLIP vs no sun {f:.4}");
-        assert!(f <= 0.005, "{mode}: the sun leaks through σt = 1e4 (FLIP {f:.4})");
+        assert!(
+            f <= 0.005,
+            "{mode}: the sun leaks through σt = 1e4 (FLIP {f:.4})"
+        );
     }
 }
 
@@ -882,13 +891,24 @@ g = 0.2
         POINT_LIGHT,
     ]));
     let out = render_all("point light inside dense fog", &scene, flip(0.09, 0.09));
-    let bare = render_all("point light in the dusty air", &lamp_alone, flip(0.08, 0.08));
+    let bare = render_all(
+        "point light in the dusty air",
+        &lamp_alone,
+        flip(0.08, 0.08),
+    );
     assert_fog_lit(&out, 0.05);
     // The ball takes the lamp's light from the rest of the room: darker on average.
     for (a, b) in out.gpu.iter().zip(&bare.gpu) {
         let (la, lb) = (mean_luma(&a.frame.images[0]), mean_luma(&b.frame.images[0]));
-        println!("point light inside dense fog ({:?}): mean luma {la:.4} vs {lb:.4} without the ball", a.mode);
-        assert!(la < lb, "{:?}: the dense ball does not dim the room", a.mode);
+        println!(
+            "point light inside dense fog ({:?}): mean luma {la:.4} vs {lb:.4} without the ball",
+            a.mode
+        );
+        assert!(
+            la < lb,
+            "{:?}: the dense ball does not dim the room",
+            a.mode
+        );
     }
 }
 

@@ -168,14 +168,20 @@ fn flips_vs_truth(text: &str) -> [f64; 2] {
 #[test]
 fn homogeneous_slab_under_a_sun_matches_truth() {
     let [reference, shared] = flips_vs_truth(SLAB);
-    assert!(reference <= 0.02, "reference vs truth {reference:.4} > 0.02");
+    assert!(
+        reference <= 0.02,
+        "reference vs truth {reference:.4} > 0.02"
+    );
     assert!(shared <= 0.02, "shared vs truth {shared:.4} > 0.02");
 }
 
 #[test]
 fn lamp_in_dense_fog_matches_truth() {
     let [reference, shared] = flips_vs_truth(LAMP);
-    assert!(reference <= 0.02, "reference vs truth {reference:.4} > 0.02");
+    assert!(
+        reference <= 0.02,
+        "reference vs truth {reference:.4} > 0.02"
+    );
     assert!(shared <= 0.02, "shared vs truth {shared:.4} > 0.02");
 }
 
@@ -213,7 +219,10 @@ fn shared_volume_matches_marching_for_point_and_spot_lights() {
 fn a_lamp_10_km_away_is_dimmed_like_a_marched_ray() {
     // The lamp sits 10 km from the fog: its volume maps only the cone around the media,
     // and the 10 km shadow ray is integrated only where the fog is.
-    let text = LAMP.replace("position = [0.0, 2.0, 0.0]", "position = [0.0, 6000.0, 8000.0]");
+    let text = LAMP.replace(
+        "position = [0.0, 2.0, 0.0]",
+        "position = [0.0, 6000.0, 8000.0]",
+    );
     let text = text.replace("intensity = 40.0", "intensity = 9.0e8");
     let scene = Arc::new(load(&text));
     let bvh = Bvh::build(&scene.mesh).unwrap();
@@ -292,7 +301,11 @@ fn wind_refills_the_volume_without_opaque_shadow_rays() {
     assert!(first > 0);
     for (i, f) in out.iter().enumerate().skip(1) {
         assert_eq!(f.stats.transmittance_nodes, first, "frame {i}: refilled");
-        assert_eq!(f.stats.rays.total, 0, "frame {i}: opaque rays {:?}", f.stats.rays);
+        assert_eq!(
+            f.stats.rays.total, 0,
+            "frame {i}: opaque rays {:?}",
+            f.stats.rays
+        );
     }
     assert_ne!(out[1].images, out[2].images, "the wind moves the fog");
 }

@@ -71,9 +71,8 @@ pub(crate) fn plan(scene: &Scene, spacing_m: f32) -> Vec<LightMediaGpu> {
                 if closest > PERSPECTIVE_BEYOND_RADII * radius {
                     // The cone around the sphere, one texel wider on every side.
                     let n = POINT_MAP_TEXELS as f32;
-                    v.tan_half = radius / (closest * closest - radius * radius).sqrt()
-                        * (n + 2.0)
-                        / n;
+                    v.tan_half =
+                        radius / (closest * closest - radius * radius).sqrt() * (n + 2.0) / n;
                     v.near = closest - radius;
                 }
                 let far = d + reach + radius;
@@ -212,7 +211,10 @@ mod tests {
             // The last node reaches past every corner of the media.
             let (lo, hi) = scene.media_bounds().unwrap();
             let far = (l.position - (lo + hi) * 0.5).length() + (hi - lo).length() * 0.5;
-            assert!(v.near + v.spacing * (v.dims[2] - 1) as f32 >= far * 0.999, "{v:?}");
+            assert!(
+                v.near + v.spacing * (v.dims[2] - 1) as f32 >= far * 0.999,
+                "{v:?}"
+            );
             next += v.nodes;
         }
         let sun = plan(&Scene::load("colonnade").unwrap(), 0.5);
