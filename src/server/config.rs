@@ -50,6 +50,40 @@ pub struct ServerConfig {
     pub encode_threads: usize,
     /// Shared grid voxel size in metres (default: the scene's).
     pub voxel_size_m: Option<f32>,
+    /// Seconds a session may go without a frame (from its welcome or its last frame)
+    /// before it is closed with `no_frames`.
+    pub frame_timeout_s: f64,
+    /// Pixels rendered per frame over all views together (the frame-time budget in
+    /// pixels); a hello or configure beyond it is refused with `over_budget`.
+    pub max_pixels_per_frame: u64,
+    /// Fault injection for tests: views of this width fail in the render loop.
+    #[doc(hidden)]
+    #[serde(skip)]
+    pub fault: Option<Fault>,
+}
+
+/// A failure the render loop injects for views of one width (tests only).
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fault {
+    /// View width (pixels) the fault hits.
+    pub view_width: u32,
+    /// What happens.
+    pub kind: FaultKind,
+}
+
+/// What an injected [`Fault`] does.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultKind {
+    /// The render call returns an error.
+    RenderError,
+    /// The render call panics.
+    RenderPanic,
+    /// The encoder job panics.
+    EncodePanic,
+    /// The size group is skipped without a word (the failure mode of old).
+    Skip,
 }
 
 impl Default for ServerConfig {
@@ -73,6 +107,10 @@ impl Default for ServerConfig {
             send_buffer_bytes: 256 * 1024,
             encode_threads: 0,
             voxel_size_m: None,
+            frame_timeout_s: 30.0,
+            // Four 1920×1080 views.
+            max_pixels_per_frame: 4 * 1920 * 1080,
+            fault: None,
         }
     }
 }
@@ -128,6 +166,7 @@ impl ServerConfig {
         for (name, v) in [
             ("hello_timeout_s", self.hello_timeout_s),
             ("stall_timeout_s", self.stall_timeout_s),
+            ("frame_timeout_s", self.frame_timeout_s),
         ] {
             anyhow::ensure!(
                 v.is_finite() && (0.05..=3600.0).contains(&v),
@@ -149,6 +188,11 @@ impl ServerConfig {
             (4096..=64 << 20).contains(&self.send_buffer_bytes),
             "send_buffer_bytes {}: must be 4096..=67108864",
             self.send_buffer_bytes
+        );
+        anyhow::ensure!(
+            self.max_pixels_per_frame >= 16 * 16,
+            "max_pixels_per_frame {}: must be at least 256",
+            self.max_pixels_per_frame
         );
         anyhow::ensure!(
             self.encode_threads <= 256,

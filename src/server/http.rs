@@ -78,8 +78,18 @@ async fn ws(
 async fn healthz(State(state): State<AppState>) -> Response {
     let hub = &state.hub;
     let (sessions, views) = hub.counts();
+    let health = hub.health();
+    let status = if health.reasons.is_empty() {
+        "ok"
+    } else {
+        "degraded"
+    };
     let body = serde_json::json!({
-        "status": "ok",
+        "status": status,
+        "reasons": health.reasons,
+        "rendering": health.rendering,
+        "render_errors": hub.telemetry.render_errors.load(Relaxed),
+        "panics": hub.telemetry.render_panics.load(Relaxed) + hub.telemetry.encode_panics.load(Relaxed),
         "scene": hub.scene.name,
         "sessions": sessions,
         "viewers": views,
@@ -89,7 +99,19 @@ async fn healthz(State(state): State<AppState>) -> Response {
         "frames_dropped": hub.telemetry.frames_dropped(),
         "uptime_s": hub.started.elapsed().as_secs_f64(),
     });
-    ([(header::CACHE_CONTROL, "no-store")], axum::Json(body)).into_response()
+    // 503 only when nobody can get frames (the render loop stopped or hangs), so a load
+    // balancer takes the instance out; failed renders of some sizes leave it in (200).
+    let code = if health.rendering {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (
+        code,
+        [(header::CACHE_CONTROL, "no-store")],
+        axum::Json(body),
+    )
+        .into_response()
 }
 
 async fn metrics(State(state): State<AppState>) -> Response {

@@ -87,9 +87,36 @@ pub(crate) struct SessionShared {
     pub(crate) encoding: AtomicBool,
     pub(crate) dropped: AtomicU64,
     pub(crate) sent: AtomicU64,
+    /// Set once when the server cannot serve this session any more (a failed render);
+    /// the writer then sends it as a fatal error and closes.
+    failure: Mutex<Option<ProtocolError>>,
+    failed: Notify,
 }
 
 impl SessionShared {
+    /// Marks the session failed (the first failure wins) and wakes its writer.
+    pub(crate) fn fail(&self, e: ProtocolError) {
+        let mut f = lock(&self.failure);
+        if f.is_none() {
+            *f = Some(e);
+            self.failed.notify_one();
+        }
+    }
+
+    pub(crate) fn is_failed(&self) -> bool {
+        lock(&self.failure).is_some()
+    }
+
+    /// Resolves with the failure once the session is marked failed.
+    pub(crate) async fn failure(&self) -> ProtocolError {
+        loop {
+            if let Some(e) = lock(&self.failure).clone() {
+                return e;
+            }
+            self.failed.notified().await;
+        }
+    }
+
     pub(crate) fn view(&self) -> SessionView {
         lock(&self.view).clone()
     }
@@ -125,6 +152,25 @@ pub(crate) struct Hub {
     wake: Condvar,
     pub(crate) shutdown: AtomicBool,
     pub(crate) started: Instant,
+    /// Milliseconds since `started` when the render loop last went round (heartbeat).
+    render_heartbeat_ms: AtomicU64,
+    /// Set when the render thread has exited.
+    render_stopped: AtomicBool,
+    /// The last render failure or caught panic, and when.
+    last_failure: Mutex<Option<(Instant, String)>>,
+}
+
+/// Recent failures keep `/healthz` degraded this long.
+const FAILURE_MEMORY: Duration = Duration::from_secs(30);
+/// A render loop that has not gone round for this long counts as stopped.
+const HEARTBEAT_STALE: Duration = Duration::from_secs(10);
+
+/// What `/healthz` reports.
+pub(crate) struct Health {
+    /// Whether the render loop is advancing (false: nobody gets frames).
+    pub(crate) rendering: bool,
+    /// Why the server is degraded; empty when it is healthy.
+    pub(crate) reasons: Vec<String>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -151,7 +197,50 @@ impl Hub {
             wake: Condvar::new(),
             shutdown: AtomicBool::new(false),
             started: Instant::now(),
+            render_heartbeat_ms: AtomicU64::new(0),
+            render_stopped: AtomicBool::new(false),
+            last_failure: Mutex::new(None),
         }
+    }
+
+    /// Called by the render loop every time round (frame or idle wait).
+    pub(crate) fn heartbeat(&self) {
+        self.render_heartbeat_ms
+            .store(self.started.elapsed().as_millis() as u64, Relaxed);
+    }
+
+    pub(crate) fn render_stopped(&self) {
+        self.render_stopped.store(true, Relaxed);
+    }
+
+    /// Records a render failure or caught panic for `/healthz`.
+    pub(crate) fn record_failure(&self, what: String) {
+        *lock(&self.last_failure) = Some((Instant::now(), what));
+    }
+
+    pub(crate) fn health(&self) -> Health {
+        let mut reasons = Vec::new();
+        let now_ms = self.started.elapsed().as_millis() as u64;
+        let beat_age_ms = now_ms.saturating_sub(self.render_heartbeat_ms.load(Relaxed));
+        let rendering = if self.render_stopped.load(Relaxed) {
+            reasons.push("the render loop has stopped".to_string());
+            false
+        } else if beat_age_ms > HEARTBEAT_STALE.as_millis() as u64 {
+            reasons.push(format!(
+                "the render loop has not advanced for {:.1} s",
+                beat_age_ms as f64 / 1e3
+            ));
+            false
+        } else {
+            true
+        };
+        if let Some((at, what)) = lock(&self.last_failure).as_ref() {
+            let age = at.elapsed();
+            if age < FAILURE_MEMORY {
+                reasons.push(format!("{what} ({:.1} s ago)", age.as_secs_f64()));
+            }
+        }
+        Health { rendering, reasons }
     }
 
     /// The scene's default viewpoints for a new session of `spec`.
@@ -189,6 +278,8 @@ impl Hub {
             encoding: AtomicBool::new(false),
             dropped: AtomicU64::new(0),
             sent: AtomicU64::new(0),
+            failure: Mutex::new(None),
+            failed: Notify::new(),
         });
         sessions.insert(id, shared.clone());
         drop(sessions);

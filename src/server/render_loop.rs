@@ -10,14 +10,17 @@
 //! reallocate each other's volumes every frame — and the world-space grid is updated
 //! once per group. Clients that pick the same resolution therefore share everything.
 
+use super::config::FaultKind;
 use super::encode::EncodeJob;
 use super::hub::{Hub, SessionSnapshot};
+use super::protocol::{ErrorCode, ProtocolError};
 use super::telemetry::DropReason;
 use crate::gpu::GpuContext;
 use crate::render::{Renderer, Settings};
 use crate::scene::Bvh;
 use std::collections::{BTreeMap, HashMap};
-use std::sync::atomic::Ordering::{AcqRel, Relaxed};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::Ordering::{AcqRel, Relaxed, Release};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -68,10 +71,23 @@ impl RenderLoop {
 
     /// Runs until the hub shuts down.
     pub(crate) fn run(mut self) {
+        let hub = self.hub.clone();
+        self.run_frames();
+        hub.render_stopped();
+    }
+
+    fn run_frames(&mut self) {
         let period = Duration::from_secs_f64(1.0 / self.hub.config.fps);
         let mut next = Instant::now();
         while !self.hub.shutdown.load(Relaxed) {
-            let sessions = self.hub.snapshot();
+            self.hub.heartbeat();
+            // Sessions already marked failed are closing; nothing is rendered for them.
+            let sessions: Vec<_> = self
+                .hub
+                .snapshot()
+                .into_iter()
+                .filter(|s| !s.session.is_failed())
+                .collect();
             if sessions.is_empty() {
                 self.evict_idle();
                 self.hub.wait_for_sessions(Duration::from_millis(250));
@@ -79,7 +95,15 @@ impl RenderLoop {
                 continue;
             }
             let started = Instant::now();
-            self.render_frame(sessions);
+            // A panic anywhere in the frame (outside a render call, which is caught on
+            // its own) drops this frame; the renderers may be mid-update, so they go too.
+            if let Err(panic) = catch_unwind(AssertUnwindSafe(|| self.render_frame(sessions))) {
+                let what = format!("the render loop panicked: {}", panic_message(&*panic));
+                tracing::error!(error = %what, "frame dropped");
+                self.hub.telemetry.render_panics.fetch_add(1, Relaxed);
+                self.hub.record_failure(what);
+                self.renderers.clear();
+            }
             self.hub
                 .telemetry
                 .frame_seconds
@@ -120,27 +144,57 @@ impl RenderLoop {
                 .iter()
                 .map(|&(si, vi)| sessions[si].cameras[vi])
                 .collect();
-            let renderer = match self.renderer_for(*w, *h) {
-                Ok(r) => r,
-                Err(e) => {
-                    self.hub.telemetry.render_errors.fetch_add(1, Relaxed);
-                    tracing::error!(width = w, height = h, error = %format!("{e:#}"), "creating a renderer failed");
-                    continue;
+            let fault = self
+                .hub
+                .config
+                .fault
+                .filter(|f| f.view_width == *w)
+                .map(|f| f.kind);
+            if fault == Some(FaultKind::Skip) {
+                continue;
+            }
+            let result = catch_unwind(AssertUnwindSafe(|| {
+                if fault == Some(FaultKind::RenderPanic) {
+                    panic!("injected render panic for {w}×{h} views");
                 }
-            };
-            match renderer.render(&cameras, *w, *h, time_s) {
-                Ok(out) => {
+                if fault == Some(FaultKind::RenderError) {
+                    anyhow::bail!("injected render error for {w}×{h} views");
+                }
+                let renderer = self.renderer_for(*w, *h)?;
+                renderer.render(&cameras, *w, *h, time_s)
+            }));
+            let error = match result {
+                Ok(Ok(out)) => {
                     self.hub.telemetry.record_render(&out.stats);
                     let us = (out.stats.frame_ms * 1e3) as u32;
                     for (&(si, vi), img) in members.iter().zip(out.images) {
                         images[si][vi] = Some(img);
                         render_us[si] = render_us[si].max(us);
                     }
+                    continue;
                 }
-                Err(e) => {
+                Ok(Err(e)) => {
                     self.hub.telemetry.render_errors.fetch_add(1, Relaxed);
-                    tracing::error!(width = w, height = h, views = cameras.len(), error = %format!("{e:#}"), "render failed");
+                    format!("{e:#}")
                 }
+                Err(panic) => {
+                    self.hub.telemetry.render_panics.fetch_add(1, Relaxed);
+                    // The renderer may be half-updated: build a fresh one next time.
+                    self.renderers.remove(&(*w, *h));
+                    format!("panic: {}", panic_message(&*panic))
+                }
+            };
+            // Loud and contained: every session with a view of this size is told and
+            // closed; the other size groups of this frame go on.
+            tracing::error!(width = w, height = h, views = cameras.len(), error = %error, "render failed; closing the sessions of this view size");
+            self.hub
+                .record_failure(format!("rendering {w}×{h} views failed: {error}"));
+            let e = ProtocolError::new(
+                ErrorCode::RenderFailed,
+                format!("rendering this session's {w}×{h} views failed on the server: {error}"),
+            );
+            for &(si, _) in members {
+                sessions[si].session.fail(e.clone());
             }
         }
         self.hub.telemetry.frames.fetch_add(1, Relaxed);
@@ -162,7 +216,27 @@ impl RenderLoop {
                 render_us,
             };
             let hub = self.hub.clone();
-            self.encoders.spawn(move || job.run(&hub));
+            let panics = self.hub.config.fault.is_some_and(|f| {
+                f.kind == FaultKind::EncodePanic && f.view_width == job.spec.view_width
+            });
+            self.encoders.spawn(move || {
+                let session = job.session.clone();
+                let result = catch_unwind(AssertUnwindSafe(|| {
+                    if panics {
+                        panic!("injected encoder panic");
+                    }
+                    job.run(&hub)
+                }));
+                if let Err(panic) = result {
+                    // A panic in a rayon job would abort the process; this frame is
+                    // dropped instead and the session's next one is encoded as usual.
+                    let what = format!("a JPEG encoder panicked: {}", panic_message(&*panic));
+                    tracing::error!(session = session.id, error = %what, "frame dropped");
+                    hub.telemetry.encode_panics.fetch_add(1, Relaxed);
+                    hub.record_failure(what);
+                    session.encoding.store(false, Release);
+                }
+            });
         }
         self.evict_idle();
     }
@@ -223,4 +297,13 @@ impl RenderLoop {
             .renderers
             .store(self.renderers.len() as i64, Relaxed);
     }
+}
+
+/// The text of a caught panic's payload.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "(no message)".into())
 }

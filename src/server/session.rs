@@ -131,6 +131,21 @@ async fn close_with(sink: &mut Sink, stream: &mut Stream, hub: &Hub, e: Protocol
     }
 }
 
+/// Sends a fatal error and a close frame (bounded by [`CLOSE_GRACE`]).
+async fn send_close(sink: &mut Sink, hub: &Hub, e: ProtocolError) {
+    hub.telemetry.client_error(e.code, true);
+    let frame = CloseFrame {
+        code: e.code.close_code(),
+        reason: close_reason(&e),
+    };
+    let send = async {
+        sink.send(Message::Text(error_json(&e, true).into()))
+            .await?;
+        sink.send(Message::Close(Some(frame))).await
+    };
+    let _ = tokio::time::timeout(CLOSE_GRACE, send).await;
+}
+
 /// Runs a session to its end. `shutdown` turns true when the server stops.
 pub(crate) async fn run(
     socket: WebSocket,
@@ -325,20 +340,17 @@ async fn write_loop(
     mut shutdown: watch::Receiver<bool>,
 ) -> &'static str {
     let stall = Duration::from_secs_f64(hub.config.stall_timeout_s);
+    let frame_timeout = Duration::from_secs_f64(hub.config.frame_timeout_s);
+    let mut last_frame = tokio::time::Instant::now();
     loop {
         let msg = tokio::select! {
             biased;
             c = ctl.recv() => match c {
                 Some(Control::Text(t)) => Message::Text(t.into()),
                 Some(Control::Close(e)) => {
-                    hub.telemetry.client_error(e.code, true);
-                    let frame = CloseFrame { code: e.code.close_code(), reason: close_reason(&e) };
-                    let send = async {
-                        sink.send(Message::Text(error_json(&e, true).into())).await?;
-                        sink.send(Message::Close(Some(frame))).await
-                    };
-                    let _ = tokio::time::timeout(CLOSE_GRACE, send).await;
-                    return e.code.as_str();
+                    let code = e.code.as_str();
+                    send_close(&mut sink, hub, e).await;
+                    return code;
                 }
                 None => return "reader ended",
             },
@@ -348,11 +360,29 @@ async fn write_loop(
                 let _ = tokio::time::timeout(CLOSE_GRACE, sink.send(Message::Close(Some(frame)))).await;
                 return "shutdown";
             }
+            e = session.failure() => {
+                let code = e.code.as_str();
+                send_close(&mut sink, hub, e).await;
+                return code;
+            }
+            () = tokio::time::sleep_until(last_frame + frame_timeout) => {
+                // Never leave a session hanging without frames: whatever kept them from
+                // it, the client learns it and can reconnect.
+                hub.telemetry.sessions_starved.fetch_add(1, Relaxed);
+                let e = ProtocolError::new(
+                    ErrorCode::NoFrames,
+                    format!("no frame could be delivered for {} s", hub.config.frame_timeout_s),
+                );
+                tracing::warn!(session = session.id, error = %e, "closing a starved session");
+                send_close(&mut sink, hub, e).await;
+                return "no_frames";
+            }
             () = session.slot.ready() => match session.slot.take() {
                 Some(frame) => {
                     let len = frame.bytes.len() as u64;
                     match tokio::time::timeout(stall, sink.send(Message::Binary(frame.bytes))).await {
                         Ok(Ok(())) => {
+                            last_frame = tokio::time::Instant::now();
                             session.sent.fetch_add(1, Relaxed);
                             hub.telemetry.frames_sent.fetch_add(1, Relaxed);
                             hub.telemetry.bytes_sent.fetch_add(len, Relaxed);

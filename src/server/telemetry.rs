@@ -54,6 +54,12 @@ pub(crate) struct Telemetry {
     pub(crate) views_rendered: AtomicU64,
     pub(crate) render_calls: AtomicU64,
     pub(crate) render_errors: AtomicU64,
+    /// Panics caught on the render thread (the frame or size group was dropped).
+    pub(crate) render_panics: AtomicU64,
+    /// Panics caught on the encoder pool (that session's frame was dropped).
+    pub(crate) encode_panics: AtomicU64,
+    /// Sessions closed because no frame reached them within the frame timeout.
+    pub(crate) sessions_starved: AtomicU64,
     pub(crate) frame_seconds: Summary,
     pub(crate) render_seconds: Summary,
     pub(crate) encode_seconds: Summary,
@@ -209,6 +215,23 @@ impl Telemetry {
             "counter",
             "Render calls that failed.",
             &[("", n(&self.render_errors))],
+        );
+        metric(
+            &mut o,
+            "fogcast_panics_total",
+            "counter",
+            "Panics caught and contained, per thread kind.",
+            &[
+                ("thread=\"render\"", n(&self.render_panics)),
+                ("thread=\"encode\"", n(&self.encode_panics)),
+            ],
+        );
+        metric(
+            &mut o,
+            "fogcast_sessions_starved_total",
+            "counter",
+            "Sessions closed because no frame reached them within the frame timeout.",
+            &[("", n(&self.sessions_starved))],
         );
         metric(
             &mut o,
