@@ -48,7 +48,8 @@ pub fn largest_binding(
     sizes
         .into_iter()
         .map(|(label, size)| (label, size.max(16).next_multiple_of(16)))
-        .max_by_key(|&(_, size)| size)
+        // The first of equal sizes, as allocation would fail on it first.
+        .reduce(|a, b| if b.1 > a.1 { b } else { a })
         .expect("six sizes")
 }
 
