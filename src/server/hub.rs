@@ -3,6 +3,7 @@
 //!
 //! Locks here are held for a copy or an insert, never across I/O or a render.
 
+use super::budget::{Budget, Usage};
 use super::config::ServerConfig;
 use super::protocol::{cameras_for, CheckedPose, ErrorCode, Layout, ProtocolError, SessionSpec};
 use super::telemetry::{DropReason, Telemetry};
@@ -144,6 +145,7 @@ pub(crate) struct SessionSnapshot {
 /// The shared server state.
 pub(crate) struct Hub {
     pub(crate) config: ServerConfig,
+    budget: Budget,
     pub(crate) scene: Arc<Scene>,
     pub(crate) telemetry: Arc<Telemetry>,
     sessions: Mutex<BTreeMap<u64, Arc<SessionShared>>>,
@@ -187,9 +189,10 @@ fn views_of(sessions: &BTreeMap<u64, Arc<SessionShared>>) -> usize {
 }
 
 impl Hub {
-    pub(crate) fn new(config: ServerConfig, scene: Arc<Scene>) -> Hub {
+    pub(crate) fn new(config: ServerConfig, scene: Arc<Scene>, budget: Budget) -> Hub {
         Hub {
             config,
+            budget,
             scene,
             telemetry: Arc::new(Telemetry::default()),
             sessions: Mutex::new(BTreeMap::new()),
@@ -266,6 +269,7 @@ impl Hub {
         if used + spec.views as usize > self.config.max_views {
             return Err(full_error(spec.views, used, self.config.max_views));
         }
+        self.admit(sessions.values().map(|s| s.view().spec), &spec)?;
         let id = self.next_id.fetch_add(1, Relaxed);
         let shared = Arc::new(SessionShared {
             id,
@@ -309,11 +313,31 @@ impl Hub {
         if others + spec.views as usize > self.config.max_views {
             return Err(full_error(spec.views, others, self.config.max_views));
         }
+        self.admit(
+            sessions
+                .values()
+                .filter(|s| s.id != session.id)
+                .map(|s| lock(&s.view).spec),
+            &spec,
+        )?;
         if view.spec.pose_count() != spec.pose_count() {
             view.poses = defaults;
         }
         view.spec = spec;
         Ok(view.clone())
+    }
+
+    /// Checks `spec` against the cost budget next to the `others` already admitted.
+    fn admit(
+        &self,
+        others: impl Iterator<Item = SessionSpec>,
+        spec: &SessionSpec,
+    ) -> Result<(), ProtocolError> {
+        let mut used = Usage::default();
+        for s in others {
+            used.add(&s);
+        }
+        self.budget.admit(&used, spec, &self.config.spec_limits())
     }
 
     /// Sessions and views now.

@@ -12,6 +12,7 @@
 //! Threads: tokio tasks do all I/O; one std thread renders; a small rayon pool encodes.
 //! Nothing on the I/O side waits for the GPU and the render thread waits for no client.
 
+mod budget;
 mod cli;
 pub mod config;
 mod encode;
@@ -99,7 +100,12 @@ impl Server {
             }
         });
 
-        let hub = Arc::new(Hub::new(config, scene));
+        let budget = budget::Budget {
+            settings,
+            max_binding_bytes: ctx.max_storage_binding,
+            max_pixels_per_frame: config.max_pixels_per_frame,
+        };
+        let hub = Arc::new(Hub::new(config, scene, budget));
         let render_loop = render_loop::RenderLoop::new(hub.clone(), ctx, bvh, settings)?;
         let render = std::thread::Builder::new()
             .name("fogcast-render".into())
