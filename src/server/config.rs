@@ -43,6 +43,9 @@ pub struct ServerConfig {
     /// Sustained client messages per second; beyond it messages are dropped, and at
     /// twice the rate for a second the session is closed.
     pub max_messages_per_s: f64,
+    /// Sustained `configure` messages per second per session (bursts of 4); beyond it a
+    /// configure is answered with a `rate_limited` error and not applied.
+    pub max_configures_per_s: f64,
     /// Kernel send buffer of each connection, bytes: small keeps latency low, because
     /// frames waiting in the kernel cannot be replaced by newer ones.
     pub send_buffer_bytes: usize,
@@ -104,6 +107,7 @@ impl Default for ServerConfig {
             stall_timeout_s: 30.0,
             max_message_bytes: 16 * 1024,
             max_messages_per_s: 120.0,
+            max_configures_per_s: 2.0,
             send_buffer_bytes: 256 * 1024,
             encode_threads: 0,
             voxel_size_m: None,
@@ -183,6 +187,12 @@ impl ServerConfig {
                 && (1.0..=10_000.0).contains(&self.max_messages_per_s),
             "max_messages_per_s {}: must be 1..=10000",
             self.max_messages_per_s
+        );
+        anyhow::ensure!(
+            self.max_configures_per_s.is_finite()
+                && (0.01..=1000.0).contains(&self.max_configures_per_s),
+            "max_configures_per_s {}: must be 0.01..=1000",
+            self.max_configures_per_s
         );
         anyhow::ensure!(
             (4096..=64 << 20).contains(&self.send_buffer_bytes),

@@ -19,6 +19,9 @@ use tokio::sync::Notify;
 #[derive(Debug, Clone)]
 pub(crate) struct EncodedFrame {
     pub(crate) bytes: Bytes,
+    /// The session spec it was rendered for (the writer sends only frames of the size
+    /// the client was last told).
+    pub(crate) spec: SessionSpec,
 }
 
 /// Latest-frame-wins mailbox between the encoders and one session's writer: holds at

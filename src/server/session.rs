@@ -9,6 +9,7 @@ use super::protocol::{
     Hello, Limits, ProtocolError, ServerMessage, SessionSpec, Welcome, FOV_RANGE_DEG,
     FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
 };
+use super::telemetry::DropReason;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
 use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt as _, StreamExt as _};
@@ -23,8 +24,11 @@ const CLOSE_GRACE: Duration = Duration::from_secs(2);
 /// Non-fatal errors a session may cause per [`ERROR_WINDOW`] before it is closed.
 const MAX_ERRORS_PER_WINDOW: u32 = 20;
 const ERROR_WINDOW: Duration = Duration::from_secs(10);
-/// Control messages (errors, welcomes) queued for the writer; more are dropped.
-const CONTROL_QUEUE: usize = 8;
+/// Control messages (welcomes, errors) waiting for the writer. They are never dropped:
+/// a client that leaves this many replies unread is closed for flooding instead.
+const CONTROL_QUEUE: usize = 32;
+/// Configures a session may send in a burst (then `max_configures_per_s`).
+const CONFIGURE_BURST: f64 = 4.0;
 
 type Sink = SplitSink<WebSocket, Message>;
 type Stream = SplitStream<WebSocket>;
@@ -32,6 +36,8 @@ type Stream = SplitStream<WebSocket>;
 /// A message for the writer.
 enum Control {
     Text(String),
+    /// A welcome for `spec`: from now on only frames of its size are sent.
+    Welcome(String, SessionSpec),
     /// Send this fatal error and a close frame, then stop.
     Close(ProtocolError),
 }
@@ -83,6 +89,36 @@ impl RateLimiter {
             Rate::Drop { warn }
         } else {
             Rate::Flood
+        }
+    }
+}
+
+/// Token bucket for `configure` (each may build a renderer on the render thread).
+struct ConfigureLimiter {
+    rate: f64,
+    tokens: f64,
+    last: Instant,
+}
+
+impl ConfigureLimiter {
+    fn new(rate: f64) -> ConfigureLimiter {
+        ConfigureLimiter {
+            rate,
+            tokens: CONFIGURE_BURST,
+            last: Instant::now(),
+        }
+    }
+
+    fn take(&mut self) -> bool {
+        let now = Instant::now();
+        self.tokens = (self.tokens + now.duration_since(self.last).as_secs_f64() * self.rate)
+            .min(CONFIGURE_BURST);
+        self.last = now;
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
         }
     }
 }
@@ -192,7 +228,7 @@ pub(crate) async fn run(
     }
     let (ctl_tx, ctl_rx) = mpsc::channel(CONTROL_QUEUE);
     let session = guard.session.clone();
-    let mut writer = std::pin::pin!(write_loop(sink, &hub, &session, ctl_rx, shutdown));
+    let mut writer = std::pin::pin!(write_loop(sink, &hub, &session, spec, ctl_rx, shutdown));
     let mut reader = std::pin::pin!(read_loop(stream, &hub, &session, ctl_tx, limiter));
     let end = tokio::select! {
         end = &mut writer => end,
@@ -336,6 +372,7 @@ async fn write_loop(
     mut sink: Sink,
     hub: &Hub,
     session: &SessionShared,
+    mut announced: SessionSpec,
     mut ctl: mpsc::Receiver<Control>,
     mut shutdown: watch::Receiver<bool>,
 ) -> &'static str {
@@ -347,6 +384,10 @@ async fn write_loop(
             biased;
             c = ctl.recv() => match c {
                 Some(Control::Text(t)) => Message::Text(t.into()),
+                Some(Control::Welcome(t, spec)) => {
+                    announced = spec;
+                    Message::Text(t.into())
+                }
                 Some(Control::Close(e)) => {
                     let code = e.code.as_str();
                     send_close(&mut sink, hub, e).await;
@@ -378,6 +419,10 @@ async fn write_loop(
                 return "no_frames";
             }
             () = session.slot.ready() => match session.slot.take() {
+                Some(frame) if !same_size(&frame.spec, &announced) => {
+                    session.count_drop(&hub.telemetry, DropReason::Resized);
+                    continue;
+                }
                 Some(frame) => {
                     let len = frame.bytes.len() as u64;
                     match tokio::time::timeout(stall, sink.send(Message::Binary(frame.bytes))).await {
@@ -409,6 +454,23 @@ async fn write_loop(
     }
 }
 
+/// Whether frames of spec `a` have the size and tiling the client was told in `b`.
+fn same_size(a: &SessionSpec, b: &SessionSpec) -> bool {
+    (a.layout, a.views, a.width, a.height) == (b.layout, b.views, b.width, b.height)
+}
+
+/// Queues a control message; a client that leaves [`CONTROL_QUEUE`] replies unread is
+/// flooding, and is closed rather than have a reply dropped.
+fn push(ctl: &mpsc::Sender<Control>, c: Control) -> Result<(), ProtocolError> {
+    match ctl.try_send(c) {
+        Ok(()) | Err(mpsc::error::TrySendError::Closed(_)) => Ok(()),
+        Err(mpsc::error::TrySendError::Full(_)) => Err(ProtocolError::new(
+            ErrorCode::RateLimited,
+            format!("{CONTROL_QUEUE} replies unread: the client sends faster than it reads"),
+        )),
+    }
+}
+
 /// Validates and applies client messages until the client leaves or a fatal error.
 async fn read_loop(
     mut stream: Stream,
@@ -419,6 +481,7 @@ async fn read_loop(
 ) {
     let mut errors = 0u32;
     let mut window_start = Instant::now();
+    let mut configures = ConfigureLimiter::new(hub.config.max_configures_per_s);
     let fatal = loop {
         let msg = match stream.next().await {
             Some(Ok(m)) => m,
@@ -438,7 +501,9 @@ async fn read_loop(
                             hub.config.max_messages_per_s
                         ),
                     );
-                    let _ = ctl.try_send(Control::Text(error_json(&e, false)));
+                    if let Err(e) = push(&ctl, Control::Text(error_json(&e, false))) {
+                        break e;
+                    }
                 }
                 continue;
             }
@@ -456,7 +521,7 @@ async fn read_loop(
             Message::Text(t) if t.len() > hub.config.max_message_bytes => {
                 break too_large(t.len(), hub.config.max_message_bytes)
             }
-            Message::Text(t) => handle_text(&t, hub, session),
+            Message::Text(t) => handle_text(&t, hub, session, &mut configures),
             Message::Binary(b) => break binary_error(b.len()),
             // Pings are answered by the WebSocket layer; a close is answered there too,
             // and the stream then ends.
@@ -464,7 +529,9 @@ async fn read_loop(
         };
         match result {
             Ok(Some(reply)) => {
-                let _ = ctl.try_send(Control::Text(reply));
+                if let Err(e) = push(&ctl, reply) {
+                    break e;
+                }
             }
             Ok(None) => {}
             Err(e) => {
@@ -483,7 +550,9 @@ async fn read_loop(
                         ),
                     );
                 }
-                let _ = ctl.try_send(Control::Text(error_json(&e, false)));
+                if let Err(e) = push(&ctl, Control::Text(error_json(&e, false))) {
+                    break e;
+                }
             }
         }
     };
@@ -495,12 +564,13 @@ async fn read_loop(
     }
 }
 
-/// Applies one text message; `Ok(Some(json))` is a reply to send.
+/// Applies one text message; `Ok(Some(reply))` is a reply to send.
 fn handle_text(
     text: &str,
     hub: &Hub,
     session: &SessionShared,
-) -> Result<Option<String>, ProtocolError> {
+    configures: &mut ConfigureLimiter,
+) -> Result<Option<Control>, ProtocolError> {
     match parse_client_message(text)? {
         ClientMessage::Pose(p) => {
             let spec = session.view().spec;
@@ -509,11 +579,20 @@ fn handle_text(
             Ok(None)
         }
         ClientMessage::Configure(c) => {
+            if !configures.take() {
+                return Err(ProtocolError::new(
+                    ErrorCode::RateLimited,
+                    format!(
+                        "configure is limited to {} per second (bursts of {CONFIGURE_BURST}); this one was not applied",
+                        hub.config.max_configures_per_s
+                    ),
+                ));
+            }
             let spec = session.view().spec;
             let new = spec.configure(&c, &hub.config.spec_limits())?;
             hub.reconfigure(session, new)?;
             tracing::info!(session = session.id, layout = layout_name(new.layout), width = new.width, height = new.height, quality = new.quality, "session reconfigured");
-            Ok(Some(welcome(hub, session)))
+            Ok(Some(Control::Welcome(welcome(hub, session), new)))
         }
         ClientMessage::Hello(h) => Err(ProtocolError::new(
             ErrorCode::InvalidMessage,

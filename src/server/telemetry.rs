@@ -45,6 +45,9 @@ pub(crate) enum DropReason {
     ClientSlow,
     /// The session's previous frame was still being encoded.
     EncoderBusy,
+    /// Rendered at a size the client has not been told (yet, or any more): a configure
+    /// changed it; only frames of the size in the last welcome are sent.
+    Resized,
 }
 
 /// Every counter of the server.
@@ -70,6 +73,7 @@ pub(crate) struct Telemetry {
     pub(crate) bytes_sent: AtomicU64,
     dropped_slow: AtomicU64,
     dropped_busy: AtomicU64,
+    dropped_resized: AtomicU64,
     pub(crate) sessions_total: AtomicU64,
     pub(crate) sessions_stalled: AtomicU64,
     pub(crate) connections: AtomicI64,
@@ -113,12 +117,15 @@ impl Telemetry {
         match reason {
             DropReason::ClientSlow => self.dropped_slow.fetch_add(1, Relaxed),
             DropReason::EncoderBusy => self.dropped_busy.fetch_add(1, Relaxed),
+            DropReason::Resized => self.dropped_resized.fetch_add(1, Relaxed),
         };
     }
 
     /// Frames dropped for any reason.
     pub(crate) fn frames_dropped(&self) -> u64 {
-        self.dropped_slow.load(Relaxed) + self.dropped_busy.load(Relaxed)
+        self.dropped_slow.load(Relaxed)
+            + self.dropped_busy.load(Relaxed)
+            + self.dropped_resized.load(Relaxed)
     }
 
     pub(crate) fn client_error(&self, code: ErrorCode, fatal: bool) {
@@ -279,7 +286,7 @@ impl Telemetry {
             "fogcast_frames_dropped_total",
             "counter",
             "Session frames dropped: replaced by a newer one before a slow client took it, or skipped while the previous one was encoding.",
-            &[("reason=\"client_slow\"", n(&self.dropped_slow)), ("reason=\"encoder_busy\"", n(&self.dropped_busy))],
+            &[("reason=\"client_slow\"", n(&self.dropped_slow)), ("reason=\"encoder_busy\"", n(&self.dropped_busy)), ("reason=\"resized\"", n(&self.dropped_resized))],
         );
         metric(
             &mut o,
