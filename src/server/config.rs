@@ -24,7 +24,8 @@ pub struct ServerConfig {
     pub fps: f64,
     /// Views rendered in total over all sessions (mono 1, stereo 2, split 2–4 each).
     pub max_views: usize,
-    /// Open WebSocket connections, sessions and handshakes together.
+    /// Open sessions (connections that completed a hello); connections still in the
+    /// handshake are bounded by `max_pending_per_ip` and `max_pending` instead.
     pub max_connections: usize,
     /// Largest frame width a client may ask for, pixels.
     pub max_width: u32,
@@ -36,6 +37,21 @@ pub struct ServerConfig {
     pub token: Option<String>,
     /// Seconds a new connection has to send its hello.
     pub hello_timeout_s: f64,
+    /// Seconds a client has to send a complete HTTP request head (slowloris guard).
+    pub header_timeout_s: f64,
+    /// Connections from one IP address that have not yet completed a hello (half-sent
+    /// requests, upgrades waiting for a hello); more are closed at once.
+    pub max_pending_per_ip: usize,
+    /// Such connections from all addresses together.
+    pub max_pending: usize,
+    /// Browser origins allowed on `/ws` (e.g. "https://fog.example.org"), besides the
+    /// page's own (the Origin matching the Host header) and localhost, 127.0.0.1, [::1].
+    /// Requests without an Origin header (non-browser clients) are allowed.
+    pub allowed_origins: Vec<String>,
+    /// Token `/metrics` requires (`Authorization: Bearer <token>`); none: public.
+    pub metrics_token: Option<String>,
+    /// Seconds shutdown waits for connections to finish before cutting them.
+    pub shutdown_timeout_s: f64,
     /// Seconds one frame may take to leave the server before the session is closed as stalled.
     pub stall_timeout_s: f64,
     /// Largest client text message, bytes.
@@ -104,6 +120,12 @@ impl Default for ServerConfig {
             default_quality: 75,
             token: None,
             hello_timeout_s: 10.0,
+            header_timeout_s: 10.0,
+            max_pending_per_ip: 16,
+            max_pending: 1024,
+            allowed_origins: Vec::new(),
+            metrics_token: None,
+            shutdown_timeout_s: 5.0,
             stall_timeout_s: 30.0,
             max_message_bytes: 16 * 1024,
             max_messages_per_s: 120.0,
@@ -161,6 +183,28 @@ impl ServerConfig {
             "default_quality {}: must be 1..=100",
             self.default_quality
         );
+        anyhow::ensure!(
+            (1..=4096).contains(&self.max_pending_per_ip),
+            "max_pending_per_ip {}: must be 1..=4096",
+            self.max_pending_per_ip
+        );
+        anyhow::ensure!(
+            (1..=65536).contains(&self.max_pending),
+            "max_pending {}: must be 1..=65536",
+            self.max_pending
+        );
+        for o in &self.allowed_origins {
+            anyhow::ensure!(
+                o.starts_with("http://") || o.starts_with("https://"),
+                "allowed_origins entry {o:?}: must be an origin like \"https://fog.example.org\""
+            );
+        }
+        if let Some(t) = &self.metrics_token {
+            anyhow::ensure!(
+                !t.is_empty() && t.len() <= 256,
+                "metrics_token: must be 1 to 256 bytes (or absent for a public /metrics)"
+            );
+        }
         if let Some(t) = &self.token {
             anyhow::ensure!(
                 !t.is_empty() && t.len() <= 256,
@@ -171,6 +215,8 @@ impl ServerConfig {
             ("hello_timeout_s", self.hello_timeout_s),
             ("stall_timeout_s", self.stall_timeout_s),
             ("frame_timeout_s", self.frame_timeout_s),
+            ("header_timeout_s", self.header_timeout_s),
+            ("shutdown_timeout_s", self.shutdown_timeout_s),
         ] {
             anyhow::ensure!(
                 v.is_finite() && (0.05..=3600.0).contains(&v),

@@ -3,6 +3,7 @@
 //!
 //! Locks here are held for a copy or an insert, never across I/O or a render.
 
+use super::admission::{Pending, TokenBackoff};
 use super::budget::{Budget, Usage};
 use super::config::ServerConfig;
 use super::protocol::{cameras_for, CheckedPose, ErrorCode, Layout, ProtocolError, SessionSpec};
@@ -149,6 +150,10 @@ pub(crate) struct SessionSnapshot {
 pub(crate) struct Hub {
     pub(crate) config: ServerConfig,
     budget: Budget,
+    /// Connections that have not completed a hello, per address.
+    pub(crate) pending: Arc<Pending>,
+    /// Failed tokens per address.
+    pub(crate) token_backoff: TokenBackoff,
     pub(crate) scene: Arc<Scene>,
     pub(crate) telemetry: Arc<Telemetry>,
     sessions: Mutex<BTreeMap<u64, Arc<SessionShared>>>,
@@ -194,6 +199,8 @@ fn views_of(sessions: &BTreeMap<u64, Arc<SessionShared>>) -> usize {
 impl Hub {
     pub(crate) fn new(config: ServerConfig, scene: Arc<Scene>, budget: Budget) -> Hub {
         Hub {
+            pending: Pending::new(config.max_pending_per_ip, config.max_pending),
+            token_backoff: TokenBackoff::default(),
             config,
             budget,
             scene,

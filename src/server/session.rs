@@ -4,6 +4,7 @@
 //! mid-frame — drops the session guard and frees everything the session held.
 
 use super::hub::{layout_name, ConnectionGuard, Hub, SessionShared};
+use super::listen::Slot;
 use super::protocol::{
     check_pose, clip, parse_client_message, CheckedPose, ClientMessage, ErrorCode, ErrorMessage,
     Hello, Limits, ProtocolError, ServerMessage, SessionSpec, Welcome, FOV_RANGE_DEG,
@@ -13,7 +14,7 @@ use super::telemetry::DropReason;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
 use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt as _, StreamExt as _};
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -188,13 +189,16 @@ pub(crate) async fn run(
     hub: Arc<Hub>,
     peer: SocketAddr,
     shutdown: watch::Receiver<bool>,
-    _conn: ConnectionGuard,
+    pending: Option<Slot>,
 ) {
     let (mut sink, mut stream) = socket.split();
     let mut limiter = RateLimiter::new(hub.config.max_messages_per_s);
     let hello_timeout = Duration::from_secs_f64(hub.config.hello_timeout_s);
-    let spec = match tokio::time::timeout(hello_timeout, handshake(&mut stream, &hub, &mut limiter))
-        .await
+    let spec = match tokio::time::timeout(
+        hello_timeout,
+        handshake(&mut stream, &hub, peer, &mut limiter),
+    )
+    .await
     {
         Ok(Ok(spec)) => spec,
         Ok(Err(Some(e))) => {
@@ -212,6 +216,19 @@ pub(crate) async fn run(
             );
             return close_with(&mut sink, &mut stream, &hub, e).await;
         }
+    };
+    // Past the hello: the connection no longer counts as pending against its address,
+    // and now counts against the server's sessions.
+    drop(pending);
+    let Some(_conn) = ConnectionGuard::try_new(&hub.telemetry, hub.config.max_connections) else {
+        let e = ProtocolError::new(
+            ErrorCode::ServerFull,
+            format!(
+                "the server serves at most {} sessions; try again later",
+                hub.config.max_connections
+            ),
+        );
+        return close_with(&mut sink, &mut stream, &hub, e).await;
     };
     let guard = match hub.register(spec) {
         Ok(g) => g,
@@ -253,6 +270,7 @@ pub(crate) async fn run(
 async fn handshake(
     stream: &mut Stream,
     hub: &Hub,
+    peer: SocketAddr,
     limiter: &mut RateLimiter,
 ) -> Result<SessionSpec, Option<ProtocolError>> {
     loop {
@@ -285,11 +303,11 @@ async fn handshake(
             }
             Err(e) => return Err(Some(e)),
         };
-        return check_hello(&hello, hub).map_err(Some);
+        return check_hello(&hello, hub, peer.ip()).map_err(Some);
     }
 }
 
-fn check_hello(h: &Hello, hub: &Hub) -> Result<SessionSpec, ProtocolError> {
+fn check_hello(h: &Hello, hub: &Hub, ip: IpAddr) -> Result<SessionSpec, ProtocolError> {
     if h.version != PROTOCOL_VERSION {
         return Err(ProtocolError::new(
             ErrorCode::UnsupportedVersion,
@@ -300,6 +318,15 @@ fn check_hello(h: &Hello, hub: &Hub) -> Result<SessionSpec, ProtocolError> {
         ));
     }
     if let Some(want) = &hub.config.token {
+        if let Err(wait) = hub.token_backoff.check(ip) {
+            return Err(ProtocolError::new(
+                ErrorCode::Unauthorized,
+                format!(
+                    "too many wrong tokens from this address: retry in {:.1} s",
+                    wait.as_secs_f64()
+                ),
+            ));
+        }
         match &h.token {
             None => {
                 return Err(ProtocolError::new(
@@ -308,16 +335,18 @@ fn check_hello(h: &Hello, hub: &Hub) -> Result<SessionSpec, ProtocolError> {
                 ))
             }
             Some(t) if !constant_time_eq(t.as_bytes(), want.as_bytes()) => {
-                return Err(ProtocolError::new(ErrorCode::Unauthorized, "wrong token"))
+                let wait = hub.token_backoff.failed(ip);
+                tracing::info!(%ip, backoff_s = wait.as_secs_f64(), "wrong token");
+                return Err(ProtocolError::new(ErrorCode::Unauthorized, "wrong token"));
             }
-            Some(_) => {}
+            Some(_) => hub.token_backoff.succeeded(ip),
         }
     }
     SessionSpec::from_hello(h, &hub.config.spec_limits())
 }
 
 /// Compares without an early exit, so response time does not leak the token's prefix.
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+pub(crate) fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
