@@ -133,6 +133,12 @@ fn error_json(e: &ProtocolError, fatal: bool) -> String {
     .to_json()
 }
 
+/// An error for the log: its message may quote client text (a type name, a version),
+/// so newlines, ANSI escapes and other control characters are escaped, never written raw.
+fn for_log(e: &ProtocolError) -> String {
+    e.to_string().escape_debug().to_string()
+}
+
 /// Close reasons are limited to 123 bytes by RFC 6455.
 fn close_reason(e: &ProtocolError) -> Utf8Bytes {
     let mut reason = format!("{}: {}", e.code.as_str(), e.message);
@@ -202,7 +208,7 @@ pub(crate) async fn run(
     {
         Ok(Ok(spec)) => spec,
         Ok(Err(Some(e))) => {
-            tracing::info!(%peer, error = %e, "handshake refused");
+            tracing::info!(%peer, error = %for_log(&e), "handshake refused");
             return close_with(&mut sink, &mut stream, &hub, e).await;
         }
         Ok(Err(None)) => return,
@@ -233,7 +239,7 @@ pub(crate) async fn run(
     let guard = match hub.register(spec) {
         Ok(g) => g,
         Err(e) => {
-            tracing::info!(%peer, error = %e, "session refused");
+            tracing::info!(%peer, error = %for_log(&e), "session refused");
             return close_with(&mut sink, &mut stream, &hub, e).await;
         }
     };
@@ -585,7 +591,7 @@ async fn read_loop(
             }
         }
     };
-    tracing::info!(session = session.id, error = %fatal, "closing session");
+    tracing::info!(session = session.id, error = %for_log(&fatal), "closing session");
     // The writer sends the error and the close frame; keep reading so the client's
     // close reply is consumed (the caller bounds how long).
     if ctl.send(Control::Close(fatal)).await.is_ok() {
@@ -650,6 +656,22 @@ mod tests {
         assert!(s.starts_with("oooooooooo"), "{s}");
         assert_eq!(s.matches('W').count(), 1, "{s}");
         assert!(s.ends_with('F'), "{s}");
+    }
+
+    #[test]
+    fn client_text_is_escaped_in_logs() {
+        // serde quotes an unknown enum variant raw.
+        let e = parse_client_message(
+            r#"{"type":"hello","version":1,"width":64,"height":36,"layout":"x\n\u001b[31mFAKE LOG LINE"}"#,
+        )
+        .unwrap_err();
+        assert!(
+            e.message.contains('\n') && e.message.contains('\u{1b}'),
+            "{e:?}"
+        );
+        let line = for_log(&e);
+        assert!(!line.chars().any(|c| c.is_control()), "{line}");
+        assert!(line.contains("\\n") && line.contains("\\u{1b}"), "{line}");
     }
 
     #[test]
