@@ -215,3 +215,71 @@ async fn wrong_tokens_back_off_per_address_and_metrics_can_need_a_token() {
     );
     server.shutdown().await.unwrap();
 }
+
+/// The real binary: SIGTERM with a half-sent request open exits within the shutdown
+/// deadline (before the fix it waited for the client to leave).
+#[cfg(unix)]
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_with_a_half_sent_request_open_exits() {
+    let dir = std::env::temp_dir().join(format!("fogcast-sigterm-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("serve.toml");
+    std::fs::write(
+        &config,
+        "port = 0\nheader_timeout_s = 3600.0\nhello_timeout_s = 3600.0\nshutdown_timeout_s = 1.0\n",
+    )
+    .unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_fogcast"))
+        .args(["serve", "--config"])
+        .arg(&config)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("fogcast serve starts");
+    let stdout = child.stdout.take().unwrap();
+    let url = tokio::time::timeout(
+        PATIENCE,
+        tokio::task::spawn_blocking(move || {
+            use std::io::BufRead as _;
+            for line in std::io::BufReader::new(stdout).lines() {
+                if let Some(rest) = line.unwrap().strip_prefix("fogcast serving http://") {
+                    return rest.split_whitespace().next().unwrap().to_string();
+                }
+            }
+            panic!("fogcast serve exited before serving");
+        }),
+    )
+    .await
+    .expect("the server starts in time")
+    .unwrap();
+    let addr: SocketAddr = url.parse().unwrap();
+    let mut slow = TcpStream::connect(addr).await.unwrap();
+    slow.write_all(HALF_REQUEST).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let pid = child.id().to_string();
+    let started = Instant::now();
+    assert!(std::process::Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .unwrap()
+        .success());
+    let waited = tokio::time::timeout(PATIENCE, async {
+        loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                return status;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    let Ok(status) = waited else {
+        let _ = child.kill();
+        panic!("fogcast did not exit after SIGTERM with a half-sent request open");
+    };
+    eprintln!(
+        "exited {status} {:.2} s after SIGTERM (shutdown_timeout_s 1)",
+        started.elapsed().as_secs_f64()
+    );
+    assert!(status.success(), "{status}");
+    let _ = read_until_closed(&mut slow).await;
+    let _ = std::fs::remove_dir_all(&dir);
+}

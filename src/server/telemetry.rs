@@ -178,7 +178,7 @@ impl Telemetry {
             &mut o,
             "fogcast_connections_refused_total",
             "counter",
-            "Connections refused at max_connections.",
+            "Sessions refused at max_connections, and connections closed over max_pending_per_ip or max_pending.",
             &[("", n(&self.connections_refused))],
         );
         metric(
