@@ -57,6 +57,7 @@ async fn a_slowloris_is_closed_by_the_header_timeout_and_does_not_block_shutdown
     })
     .await;
     let addr = server.local_addr();
+    let mut silent = TcpStream::connect(addr).await.unwrap();
     let mut slow = TcpStream::connect(addr).await.unwrap();
     slow.write_all(HALF_REQUEST).await.unwrap();
     let started = Instant::now();
@@ -70,6 +71,8 @@ async fn a_slowloris_is_closed_by_the_header_timeout_and_does_not_block_shutdown
         held >= Duration::from_millis(900),
         "closed by the timeout, not at once: {held:?}"
     );
+    // A connection that never sends a byte is closed too.
+    let _ = read_until_closed(&mut silent).await;
     // A viewer is served meanwhile and after.
     let viewer = Viewer::start(addr, 64, 36).await;
     viewer.wait_frames(0, 2).await;
