@@ -122,3 +122,24 @@ async fn a_silently_skipped_session_is_closed_by_the_frame_timeout() {
     viewer.wait_frames(n, 3).await;
     server.shutdown().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_view_size_is_prepared_without_stalling_other_viewers() {
+    let server = start(faulty(FaultKind::SlowBuild)).await;
+    let addr = server.local_addr();
+    let viewer = Viewer::start(addr, 64, 36).await;
+    viewer.wait_frames(0, 2).await;
+    let mut ws = connect(addr).await;
+    welcome(&mut ws, hello(96, 54)).await;
+    let before = viewer.frames();
+    // Its renderer takes 3 s more to build; the render loop goes on meanwhile.
+    let (h, _) = next_frame(&mut ws).await;
+    let during = viewer.frames() - before;
+    eprintln!("the other viewer got {during} frames while the new size was prepared");
+    assert_eq!((h.width, h.height), (96, 54));
+    assert!(
+        during >= 10,
+        "{during} frames in 3 s at 20 fps: the frame stalled"
+    );
+    server.shutdown().await.unwrap();
+}

@@ -103,6 +103,8 @@ pub enum FaultKind {
     EncodePanic,
     /// The size group is skipped without a word (the failure mode of old).
     Skip,
+    /// Building the renderer for this size takes 3 s longer.
+    SlowBuild,
 }
 
 impl Default for ServerConfig {

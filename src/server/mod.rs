@@ -9,7 +9,8 @@
 //! - `session`: one connection — handshake, validation, rate limits, sending.
 //! - `http`: routes (`/`, `/ws`, `/healthz`, `/metrics`).
 //!
-//! Threads: tokio tasks do all I/O; one std thread renders; a small rayon pool encodes.
+//! Threads: tokio tasks do all I/O; one std thread renders, another builds renderers for
+//! new view sizes; a small rayon pool encodes.
 //! Nothing on the I/O side waits for the GPU and the render thread waits for no client.
 
 mod admission;

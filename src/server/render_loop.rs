@@ -9,6 +9,9 @@
 //! its own [`Renderer`] — its per-viewer volumes fit that size, so groups do not
 //! reallocate each other's volumes every frame — and the world-space grid is updated
 //! once per group. Clients that pick the same resolution therefore share everything.
+//! A new size's renderer is built on a builder thread; its views wait until it is ready
+//! while every other group renders on. A failed or panicking render call closes the
+//! sessions of that size only (`render_failed`); a panic elsewhere drops the frame.
 
 use super::config::FaultKind;
 use super::encode::EncodeJob;
@@ -18,10 +21,10 @@ use super::telemetry::DropReason;
 use crate::gpu::GpuContext;
 use crate::render::{Renderer, Settings};
 use crate::scene::Bvh;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::Ordering::{AcqRel, Relaxed, Release};
-use std::sync::Arc;
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 /// Renderers kept for view sizes no session uses right now (a client that reconnects or
@@ -35,12 +38,66 @@ struct CachedRenderer {
 
 pub(crate) struct RenderLoop {
     hub: Arc<Hub>,
-    ctx: Arc<GpuContext>,
-    bvh: Bvh,
-    settings: Settings,
     encoders: rayon::ThreadPool,
     renderers: HashMap<(u32, u32), CachedRenderer>,
+    /// Sizes whose renderer the builder thread is making.
+    building: HashSet<(u32, u32)>,
+    /// Sizes whose renderer could not be built, with the error (reported once).
+    build_failed: HashMap<(u32, u32), String>,
+    build_tx: mpsc::Sender<(u32, u32)>,
+    built_rx: mpsc::Receiver<Built>,
     frame: u64,
+}
+
+/// A renderer from the builder thread, for one view size.
+type Built = ((u32, u32), Result<Renderer, String>);
+
+/// Builds renderers for new view sizes (pipelines and the shared grid: 140–190 ms on a
+/// GPU, more on lavapipe) off the render thread, so a client asking for a new size
+/// does not stall the frame for everyone; its views are rendered once it is ready.
+fn run_builder(
+    ctx: Arc<GpuContext>,
+    hub: Arc<Hub>,
+    bvh: Bvh,
+    settings: Settings,
+    requests: mpsc::Receiver<(u32, u32)>,
+    built: mpsc::Sender<Built>,
+) {
+    for (width, height) in requests {
+        let started = Instant::now();
+        let slow = hub
+            .config
+            .fault
+            .is_some_and(|f| f.kind == FaultKind::SlowBuild && f.view_width == width);
+        if slow {
+            std::thread::sleep(Duration::from_secs(3));
+        }
+        let result = catch_unwind(AssertUnwindSafe(|| {
+            Renderer::with_bvh(ctx.clone(), hub.scene.clone(), &bvh, settings)
+        }));
+        let result = match result {
+            Ok(Ok(r)) => {
+                tracing::info!(
+                    width,
+                    height,
+                    ms = started.elapsed().as_millis() as u64,
+                    "renderer created for a new view size"
+                );
+                Ok(r)
+            }
+            Ok(Err(e)) => Err(format!("creating a renderer: {e:#}")),
+            Err(panic) => {
+                hub.telemetry.render_panics.fetch_add(1, Relaxed);
+                Err(format!(
+                    "creating a renderer panicked: {}",
+                    panic_message(&*panic)
+                ))
+            }
+        };
+        if built.send(((width, height), result)).is_err() {
+            return;
+        }
+    }
 }
 
 impl RenderLoop {
@@ -58,13 +115,20 @@ impl RenderLoop {
             .num_threads(threads)
             .thread_name(|i| format!("fogcast-encode-{i}"))
             .build()?;
+        let (build_tx, requests) = mpsc::channel();
+        let (built, built_rx) = mpsc::channel();
+        let builder_hub = hub.clone();
+        std::thread::Builder::new()
+            .name("fogcast-build".into())
+            .spawn(move || run_builder(ctx, builder_hub, bvh, settings, requests, built))?;
         Ok(RenderLoop {
             hub,
-            ctx,
-            bvh,
-            settings,
             encoders,
             renderers: HashMap::new(),
+            building: HashSet::new(),
+            build_failed: HashMap::new(),
+            build_tx,
+            built_rx,
             frame: 0,
         })
     }
@@ -122,6 +186,7 @@ impl RenderLoop {
 
     fn render_frame(&mut self, sessions: Vec<SessionSnapshot>) {
         self.frame += 1;
+        self.collect_built();
         let frame_no = self.frame as u32;
         let time_s = (self.hub.started.elapsed().as_secs_f64() % 86_400.0) as f32;
         // Views grouped by size: (session index, view index) per camera.
@@ -160,11 +225,15 @@ impl RenderLoop {
                 if fault == Some(FaultKind::RenderError) {
                     anyhow::bail!("injected render error for {w}×{h} views");
                 }
-                let renderer = self.renderer_for(*w, *h)?;
-                renderer.render(&cameras, *w, *h, time_s)
+                match self.renderer_for(*w, *h)? {
+                    Some(renderer) => renderer.render(&cameras, *w, *h, time_s).map(Some),
+                    None => Ok(None),
+                }
             }));
             let error = match result {
-                Ok(Ok(out)) => {
+                // Its renderer is being built: these views wait a frame or a few.
+                Ok(Ok(None)) => continue,
+                Ok(Ok(Some(out))) => {
                     self.hub.telemetry.record_render(&out.stats);
                     let us = (out.stats.frame_ms * 1e3) as u32;
                     for (&(si, vi), img) in members.iter().zip(out.images) {
@@ -241,40 +310,49 @@ impl RenderLoop {
         self.evict_idle();
     }
 
-    fn renderer_for(&mut self, width: u32, height: u32) -> anyhow::Result<&mut Renderer> {
-        let frame = self.frame;
-        if !self.renderers.contains_key(&(width, height)) {
-            let started = Instant::now();
-            let renderer = Renderer::with_bvh(
-                self.ctx.clone(),
-                self.hub.scene.clone(),
-                &self.bvh,
-                self.settings,
-            )?;
-            tracing::info!(
-                width,
-                height,
-                ms = started.elapsed().as_millis() as u64,
-                "renderer created for a new view size"
-            );
-            self.renderers.insert(
-                (width, height),
-                CachedRenderer {
-                    renderer,
-                    last_frame: frame,
-                },
-            );
-            self.hub
-                .telemetry
-                .renderers
-                .store(self.renderers.len() as i64, Relaxed);
+    /// Takes the renderers the builder finished.
+    fn collect_built(&mut self) {
+        while let Ok((size, result)) = self.built_rx.try_recv() {
+            self.building.remove(&size);
+            match result {
+                Ok(renderer) => {
+                    self.renderers.insert(
+                        size,
+                        CachedRenderer {
+                            renderer,
+                            last_frame: self.frame,
+                        },
+                    );
+                }
+                Err(e) => {
+                    self.build_failed.insert(size, e);
+                }
+            }
         }
-        let cached = self
+        self.hub
+            .telemetry
             .renderers
-            .get_mut(&(width, height))
-            .expect("inserted above");
-        cached.last_frame = frame;
-        Ok(&mut cached.renderer)
+            .store(self.renderers.len() as i64, Relaxed);
+    }
+
+    /// The renderer for views of this size; `None` while the builder makes it (asked
+    /// for here the first time), an error when it could not be built.
+    fn renderer_for(&mut self, width: u32, height: u32) -> anyhow::Result<Option<&mut Renderer>> {
+        let size = (width, height);
+        if let Some(e) = self.build_failed.remove(&size) {
+            anyhow::bail!(e);
+        }
+        let frame = self.frame;
+        if let Some(cached) = self.renderers.get_mut(&size) {
+            cached.last_frame = frame;
+            return Ok(Some(&mut cached.renderer));
+        }
+        if self.building.insert(size) {
+            self.build_tx
+                .send(size)
+                .map_err(|_| anyhow::anyhow!("the renderer builder thread has stopped"))?;
+        }
+        Ok(None)
     }
 
     /// Drops the least recently used renderers beyond those in use plus a few idle ones.
