@@ -143,3 +143,42 @@ async fn a_new_view_size_is_prepared_without_stalling_other_viewers() {
     );
     server.shutdown().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_device_ends_every_session_cleanly_and_is_reported() {
+    let server = start(faulty(FaultKind::DeviceLost)).await;
+    let addr = server.local_addr();
+    let mut bystander = connect(addr).await;
+    welcome(&mut bystander, hello(64, 36)).await;
+    next_frame(&mut bystander).await;
+    let mut ws = connect(addr).await;
+    welcome(&mut ws, hello(96, 54)).await;
+    for ws in [&mut ws, &mut bystander] {
+        let (e, close, _) = expect_fatal(ws).await;
+        assert_eq!((e.code.as_str(), close), ("render_failed", 1011), "{e:?}");
+    }
+    let (status, h) = tokio::time::timeout(PATIENCE, async {
+        loop {
+            let (status, h) = health(addr).await;
+            if status == 503 {
+                return (status, h);
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("/healthz reports the lost device");
+    eprintln!("{status} {h}");
+    assert_eq!(
+        (h["status"].as_str(), h["rendering"].as_bool()),
+        (Some("degraded"), Some(false))
+    );
+    assert!(h["reasons"].to_string().contains("device was lost"), "{h}");
+    // New sessions are refused with the reason, not accepted and starved.
+    let mut late = connect(addr).await;
+    send_json(&mut late, hello(64, 36)).await;
+    let (e, close, _) = expect_fatal(&mut late).await;
+    assert_eq!((e.code.as_str(), close), ("render_failed", 1011), "{e:?}");
+    assert!(e.message.contains("device was lost"), "{}", e.message);
+    server.shutdown().await.unwrap();
+}

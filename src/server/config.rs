@@ -105,6 +105,8 @@ pub enum FaultKind {
     Skip,
     /// Building the renderer for this size takes 3 s longer.
     SlowBuild,
+    /// The render loop destroys the GPU device when it meets this size.
+    DeviceLost,
 }
 
 impl Default for ServerConfig {

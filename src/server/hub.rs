@@ -168,6 +168,8 @@ pub(crate) struct Hub {
     render_stopped: AtomicBool,
     /// The last render failure or caught panic, and when.
     last_failure: Mutex<Option<(Instant, String)>>,
+    /// Set (with wgpu's message) when the GPU device is lost: nothing renders any more.
+    device_lost: Mutex<Option<String>>,
 }
 
 /// Recent failures keep `/healthz` degraded this long.
@@ -213,7 +215,20 @@ impl Hub {
             render_heartbeat_ms: AtomicU64::new(0),
             render_stopped: AtomicBool::new(false),
             last_failure: Mutex::new(None),
+            device_lost: Mutex::new(None),
         }
+    }
+
+    /// Records the loss of the GPU device (from wgpu's device-lost callback).
+    pub(crate) fn lose_device(&self, why: String) {
+        tracing::error!(reason = %why, "the GPU device was lost: every session is closed, restart the server");
+        self.record_failure(format!("the GPU device was lost: {why}"));
+        *lock(&self.device_lost) = Some(why);
+    }
+
+    /// Why the GPU device was lost, if it was.
+    pub(crate) fn device_lost(&self) -> Option<String> {
+        lock(&self.device_lost).clone()
     }
 
     /// Called by the render loop every time round (frame or idle wait).
@@ -235,7 +250,13 @@ impl Hub {
         let mut reasons = Vec::new();
         let now_ms = self.started.elapsed().as_millis() as u64;
         let beat_age_ms = now_ms.saturating_sub(self.render_heartbeat_ms.load(Relaxed));
-        let rendering = if self.render_stopped.load(Relaxed) {
+        let lost = self.device_lost();
+        let rendering = if let Some(why) = &lost {
+            reasons.push(format!(
+                "the GPU device was lost ({why}); restart the server"
+            ));
+            false
+        } else if self.render_stopped.load(Relaxed) {
             reasons.push("the render loop has stopped".to_string());
             false
         } else if beat_age_ms > HEARTBEAT_STALE.as_millis() as u64 {
@@ -274,6 +295,14 @@ impl Hub {
         spec: SessionSpec,
     ) -> Result<SessionGuard, ProtocolError> {
         let poses = self.default_poses(&spec);
+        if let Some(why) = self.device_lost() {
+            return Err(ProtocolError::new(
+                ErrorCode::RenderFailed,
+                format!(
+                    "the server's GPU device was lost ({why}); it cannot render until restarted"
+                ),
+            ));
+        }
         let mut sessions = lock(&self.sessions);
         let used = views_of(&sessions);
         if used + spec.views as usize > self.config.max_views {

@@ -95,6 +95,14 @@ impl Server {
             max_pixels_per_frame: config.max_pixels_per_frame,
         };
         let hub = Arc::new(Hub::new(config, scene, budget));
+        let lost_hub = Arc::downgrade(&hub);
+        ctx.device.set_device_lost_callback(move |reason, message| {
+            if let Some(hub) = lost_hub.upgrade() {
+                if !hub.shutdown.load(std::sync::atomic::Ordering::Relaxed) {
+                    hub.lose_device(format!("{reason:?}: {message}"));
+                }
+            }
+        });
         let render_loop = render_loop::RenderLoop::new(hub.clone(), ctx, bvh, settings)?;
         let render = std::thread::Builder::new()
             .name("fogcast-render".into())

@@ -38,6 +38,7 @@ struct CachedRenderer {
 
 pub(crate) struct RenderLoop {
     hub: Arc<Hub>,
+    ctx: Arc<GpuContext>,
     encoders: rayon::ThreadPool,
     renderers: HashMap<(u32, u32), CachedRenderer>,
     /// Sizes whose renderer the builder thread is making.
@@ -120,9 +121,13 @@ impl RenderLoop {
         let builder_hub = hub.clone();
         std::thread::Builder::new()
             .name("fogcast-build".into())
-            .spawn(move || run_builder(ctx, builder_hub, bvh, settings, requests, built))?;
+            .spawn({
+                let ctx = ctx.clone();
+                move || run_builder(ctx, builder_hub, bvh, settings, requests, built)
+            })?;
         Ok(RenderLoop {
             hub,
+            ctx,
             encoders,
             renderers: HashMap::new(),
             building: HashSet::new(),
@@ -186,6 +191,18 @@ impl RenderLoop {
 
     fn render_frame(&mut self, sessions: Vec<SessionSnapshot>) {
         self.frame += 1;
+        if let Some(why) = self.hub.device_lost() {
+            let e = ProtocolError::new(
+                ErrorCode::RenderFailed,
+                format!(
+                    "the server's GPU device was lost ({why}); it cannot render until restarted"
+                ),
+            );
+            for s in &sessions {
+                s.session.fail(e.clone());
+            }
+            return;
+        }
         self.collect_built();
         let frame_no = self.frame as u32;
         let time_s = (self.hub.started.elapsed().as_secs_f64() % 86_400.0) as f32;
@@ -225,10 +242,24 @@ impl RenderLoop {
                 if fault == Some(FaultKind::RenderError) {
                     anyhow::bail!("injected render error for {w}×{h} views");
                 }
-                match self.renderer_for(*w, *h)? {
-                    Some(renderer) => renderer.render(&cameras, *w, *h, time_s).map(Some),
-                    None => Ok(None),
+                if fault == Some(FaultKind::DeviceLost) {
+                    self.ctx.device.destroy();
                 }
+                let device = self.ctx.device.clone();
+                let Some(renderer) = self.renderer_for(*w, *h)? else {
+                    return Ok(None);
+                };
+                // wgpu errors of this render call come back here as an error instead of
+                // reaching the default handler (which panics).
+                let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+                let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+                let out = renderer.render(&cameras, *w, *h, time_s);
+                let invalid = pollster::block_on(validation.pop());
+                let out_of_memory = pollster::block_on(oom.pop());
+                if let Some(e) = invalid.or(out_of_memory) {
+                    anyhow::bail!("wgpu: {e}");
+                }
+                out.map(Some)
             }));
             let error = match result {
                 // Its renderer is being built: these views wait a frame or a few.
