@@ -127,8 +127,9 @@
       state.ws = null;
       state.connected = false;
       const reason = ev.reason || `code ${ev.code}`;
-      // A refused hello or token will be refused again: wait for the user to change something.
-      if (ev.code === 4400 || ev.code === 4401) {
+      // A refused hello, token or size (over_budget: the reason offers a size that fits)
+      // will be refused again: wait for the user to change something.
+      if (ev.code === 4400 || ev.code === 4401 || ev.code === 4413) {
         setStatus(`closed: ${reason}`, true);
         showMessage(reason);
         return;

@@ -15,6 +15,44 @@ pub struct ViewerLayout {
     pub frustum_dims: [u32; 2],
 }
 
+/// The largest storage buffer that [`ViewerVolumes`] for `count` views of
+/// `width`×`height` under `settings` would bind, as (label, bytes) — the same sizes
+/// (rounded up to 16 bytes, as `GpuContext::storage` does) that allocation checks
+/// against the adapter's binding limit, so a caller can refuse a size before it fails.
+pub fn largest_binding(
+    settings: &super::Settings,
+    count: usize,
+    width: u32,
+    height: u32,
+) -> (&'static str, u64) {
+    let n = count as u64;
+    let froxel_cols =
+        (width.div_ceil(settings.froxel_px) * height.div_ceil(settings.froxel_px)) as u64;
+    let frustum_cols =
+        (width.div_ceil(settings.frustum_px) * height.div_ceil(settings.frustum_px)) as u64;
+    let froxels = n * froxel_cols * settings.slices as u64 * 8;
+    let sizes = [
+        ("froxels", froxels),
+        ("integrated", froxels),
+        (
+            "froxel history",
+            if settings.temporal { froxels } else { 16 },
+        ),
+        (
+            "shadow frustum",
+            n * frustum_cols * settings.frustum_slices().max(1) as u64 * 4,
+        ),
+        ("tile depth", n * froxel_cols * 4),
+        ("output", n * width as u64 * height as u64 * 4),
+    ];
+    sizes
+        .into_iter()
+        .map(|(label, size)| (label, size.max(16).next_multiple_of(16)))
+        // The first of equal sizes, as allocation would fail on it first.
+        .reduce(|a, b| if b.1 > a.1 { b } else { a })
+        .expect("six sizes")
+}
+
 /// Every viewer's froxel volumes, shadow frustums, G-buffer and output image.
 ///
 /// Viewer `i`'s froxels start at `i × froxels_per_view` in each stacked buffer.

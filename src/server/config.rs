@@ -24,7 +24,8 @@ pub struct ServerConfig {
     pub fps: f64,
     /// Views rendered in total over all sessions (mono 1, stereo 2, split 2–4 each).
     pub max_views: usize,
-    /// Open WebSocket connections, sessions and handshakes together.
+    /// Open sessions (connections that completed a hello); connections still in the
+    /// handshake are bounded by `max_pending_per_ip` and `max_pending` instead.
     pub max_connections: usize,
     /// Largest frame width a client may ask for, pixels.
     pub max_width: u32,
@@ -36,6 +37,21 @@ pub struct ServerConfig {
     pub token: Option<String>,
     /// Seconds a new connection has to send its hello.
     pub hello_timeout_s: f64,
+    /// Seconds a client has to send a complete HTTP request head (slowloris guard).
+    pub header_timeout_s: f64,
+    /// Connections from one IP address that have not yet completed a hello (half-sent
+    /// requests, upgrades waiting for a hello); more are closed at once.
+    pub max_pending_per_ip: usize,
+    /// Such connections from all addresses together.
+    pub max_pending: usize,
+    /// Browser origins allowed on `/ws` (e.g. "https://fog.example.org"), besides the
+    /// page's own (the Origin matching the Host header) and localhost, 127.0.0.1, [::1].
+    /// Requests without an Origin header (non-browser clients) are allowed.
+    pub allowed_origins: Vec<String>,
+    /// Token `/metrics` requires (`Authorization: Bearer <token>`); none: public.
+    pub metrics_token: Option<String>,
+    /// Seconds shutdown waits for connections to finish before cutting them.
+    pub shutdown_timeout_s: f64,
     /// Seconds one frame may take to leave the server before the session is closed as stalled.
     pub stall_timeout_s: f64,
     /// Largest client text message, bytes.
@@ -43,6 +59,9 @@ pub struct ServerConfig {
     /// Sustained client messages per second; beyond it messages are dropped, and at
     /// twice the rate for a second the session is closed.
     pub max_messages_per_s: f64,
+    /// Sustained `configure` messages per second per session (bursts of 4); beyond it a
+    /// configure is answered with a `rate_limited` error and not applied.
+    pub max_configures_per_s: f64,
     /// Kernel send buffer of each connection, bytes: small keeps latency low, because
     /// frames waiting in the kernel cannot be replaced by newer ones.
     pub send_buffer_bytes: usize,
@@ -50,6 +69,44 @@ pub struct ServerConfig {
     pub encode_threads: usize,
     /// Shared grid voxel size in metres (default: the scene's).
     pub voxel_size_m: Option<f32>,
+    /// Seconds a session may go without a frame (from its welcome or its last frame)
+    /// before it is closed with `no_frames`.
+    pub frame_timeout_s: f64,
+    /// Pixels rendered per frame over all views together (the frame-time budget in
+    /// pixels); a hello or configure beyond it is refused with `over_budget`.
+    pub max_pixels_per_frame: u64,
+    /// Fault injection for tests: views of this width fail in the render loop.
+    #[doc(hidden)]
+    #[serde(skip)]
+    pub fault: Option<Fault>,
+}
+
+/// A failure the render loop injects for views of one width (tests only).
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fault {
+    /// View width (pixels) the fault hits.
+    pub view_width: u32,
+    /// What happens.
+    pub kind: FaultKind,
+}
+
+/// What an injected [`Fault`] does.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultKind {
+    /// The render call returns an error.
+    RenderError,
+    /// The render call panics.
+    RenderPanic,
+    /// The encoder job panics.
+    EncodePanic,
+    /// The size group is skipped without a word (the failure mode of old).
+    Skip,
+    /// Building the renderer for this size takes 3 s longer.
+    SlowBuild,
+    /// The render loop destroys the GPU device when it meets this size.
+    DeviceLost,
 }
 
 impl Default for ServerConfig {
@@ -67,12 +124,23 @@ impl Default for ServerConfig {
             default_quality: 75,
             token: None,
             hello_timeout_s: 10.0,
+            header_timeout_s: 10.0,
+            max_pending_per_ip: 16,
+            max_pending: 1024,
+            allowed_origins: Vec::new(),
+            metrics_token: None,
+            shutdown_timeout_s: 5.0,
             stall_timeout_s: 30.0,
             max_message_bytes: 16 * 1024,
             max_messages_per_s: 120.0,
+            max_configures_per_s: 2.0,
             send_buffer_bytes: 256 * 1024,
             encode_threads: 0,
             voxel_size_m: None,
+            frame_timeout_s: 30.0,
+            // Four 1920×1080 views.
+            max_pixels_per_frame: 4 * 1920 * 1080,
+            fault: None,
         }
     }
 }
@@ -119,6 +187,28 @@ impl ServerConfig {
             "default_quality {}: must be 1..=100",
             self.default_quality
         );
+        anyhow::ensure!(
+            (1..=4096).contains(&self.max_pending_per_ip),
+            "max_pending_per_ip {}: must be 1..=4096",
+            self.max_pending_per_ip
+        );
+        anyhow::ensure!(
+            (1..=65536).contains(&self.max_pending),
+            "max_pending {}: must be 1..=65536",
+            self.max_pending
+        );
+        for o in &self.allowed_origins {
+            anyhow::ensure!(
+                o.starts_with("http://") || o.starts_with("https://"),
+                "allowed_origins entry {o:?}: must be an origin like \"https://fog.example.org\""
+            );
+        }
+        if let Some(t) = &self.metrics_token {
+            anyhow::ensure!(
+                !t.is_empty() && t.len() <= 256,
+                "metrics_token: must be 1 to 256 bytes (or absent for a public /metrics)"
+            );
+        }
         if let Some(t) = &self.token {
             anyhow::ensure!(
                 !t.is_empty() && t.len() <= 256,
@@ -128,6 +218,9 @@ impl ServerConfig {
         for (name, v) in [
             ("hello_timeout_s", self.hello_timeout_s),
             ("stall_timeout_s", self.stall_timeout_s),
+            ("frame_timeout_s", self.frame_timeout_s),
+            ("header_timeout_s", self.header_timeout_s),
+            ("shutdown_timeout_s", self.shutdown_timeout_s),
         ] {
             anyhow::ensure!(
                 v.is_finite() && (0.05..=3600.0).contains(&v),
@@ -146,9 +239,20 @@ impl ServerConfig {
             self.max_messages_per_s
         );
         anyhow::ensure!(
+            self.max_configures_per_s.is_finite()
+                && (0.01..=1000.0).contains(&self.max_configures_per_s),
+            "max_configures_per_s {}: must be 0.01..=1000",
+            self.max_configures_per_s
+        );
+        anyhow::ensure!(
             (4096..=64 << 20).contains(&self.send_buffer_bytes),
             "send_buffer_bytes {}: must be 4096..=67108864",
             self.send_buffer_bytes
+        );
+        anyhow::ensure!(
+            self.max_pixels_per_frame >= 16 * 16,
+            "max_pixels_per_frame {}: must be at least 256",
+            self.max_pixels_per_frame
         );
         anyhow::ensure!(
             self.encode_threads <= 256,

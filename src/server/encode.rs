@@ -30,7 +30,10 @@ impl EncodeJob {
             Ok(bytes) => {
                 hub.telemetry.encode_seconds.observe_ms(ms);
                 hub.telemetry.frames_encoded.fetch_add(1, Relaxed);
-                if self.session.slot.publish(EncodedFrame { bytes }) {
+                if self.session.slot.publish(EncodedFrame {
+                    bytes,
+                    spec: self.spec,
+                }) {
                     self.session
                         .count_drop(&hub.telemetry, DropReason::ClientSlow);
                 }

@@ -3,6 +3,8 @@
 //!
 //! Locks here are held for a copy or an insert, never across I/O or a render.
 
+use super::admission::{Pending, TokenBackoff};
+use super::budget::{Budget, Usage};
 use super::config::ServerConfig;
 use super::protocol::{cameras_for, CheckedPose, ErrorCode, Layout, ProtocolError, SessionSpec};
 use super::telemetry::{DropReason, Telemetry};
@@ -18,6 +20,9 @@ use tokio::sync::Notify;
 #[derive(Debug, Clone)]
 pub(crate) struct EncodedFrame {
     pub(crate) bytes: Bytes,
+    /// The session spec it was rendered for (the writer sends only frames of the size
+    /// the client was last told).
+    pub(crate) spec: SessionSpec,
 }
 
 /// Latest-frame-wins mailbox between the encoders and one session's writer: holds at
@@ -87,9 +92,36 @@ pub(crate) struct SessionShared {
     pub(crate) encoding: AtomicBool,
     pub(crate) dropped: AtomicU64,
     pub(crate) sent: AtomicU64,
+    /// Set once when the server cannot serve this session any more (a failed render);
+    /// the writer then sends it as a fatal error and closes.
+    failure: Mutex<Option<ProtocolError>>,
+    failed: Notify,
 }
 
 impl SessionShared {
+    /// Marks the session failed (the first failure wins) and wakes its writer.
+    pub(crate) fn fail(&self, e: ProtocolError) {
+        let mut f = lock(&self.failure);
+        if f.is_none() {
+            *f = Some(e);
+            self.failed.notify_one();
+        }
+    }
+
+    pub(crate) fn is_failed(&self) -> bool {
+        lock(&self.failure).is_some()
+    }
+
+    /// Resolves with the failure once the session is marked failed.
+    pub(crate) async fn failure(&self) -> ProtocolError {
+        loop {
+            if let Some(e) = lock(&self.failure).clone() {
+                return e;
+            }
+            self.failed.notified().await;
+        }
+    }
+
     pub(crate) fn view(&self) -> SessionView {
         lock(&self.view).clone()
     }
@@ -117,6 +149,11 @@ pub(crate) struct SessionSnapshot {
 /// The shared server state.
 pub(crate) struct Hub {
     pub(crate) config: ServerConfig,
+    budget: Budget,
+    /// Connections that have not completed a hello, per address.
+    pub(crate) pending: Arc<Pending>,
+    /// Failed tokens per address.
+    pub(crate) token_backoff: TokenBackoff,
     pub(crate) scene: Arc<Scene>,
     pub(crate) telemetry: Arc<Telemetry>,
     sessions: Mutex<BTreeMap<u64, Arc<SessionShared>>>,
@@ -125,6 +162,27 @@ pub(crate) struct Hub {
     wake: Condvar,
     pub(crate) shutdown: AtomicBool,
     pub(crate) started: Instant,
+    /// Milliseconds since `started` when the render loop last went round (heartbeat).
+    render_heartbeat_ms: AtomicU64,
+    /// Set when the render thread has exited.
+    render_stopped: AtomicBool,
+    /// The last render failure or caught panic, and when.
+    last_failure: Mutex<Option<(Instant, String)>>,
+    /// Set (with wgpu's message) when the GPU device is lost: nothing renders any more.
+    device_lost: Mutex<Option<String>>,
+}
+
+/// Recent failures keep `/healthz` degraded this long.
+const FAILURE_MEMORY: Duration = Duration::from_secs(30);
+/// A render loop that has not gone round for this long counts as stopped.
+const HEARTBEAT_STALE: Duration = Duration::from_secs(10);
+
+/// What `/healthz` reports.
+pub(crate) struct Health {
+    /// Whether the render loop is advancing (false: nobody gets frames).
+    pub(crate) rendering: bool,
+    /// Why the server is degraded; empty when it is healthy.
+    pub(crate) reasons: Vec<String>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -141,9 +199,12 @@ fn views_of(sessions: &BTreeMap<u64, Arc<SessionShared>>) -> usize {
 }
 
 impl Hub {
-    pub(crate) fn new(config: ServerConfig, scene: Arc<Scene>) -> Hub {
+    pub(crate) fn new(config: ServerConfig, scene: Arc<Scene>, budget: Budget) -> Hub {
         Hub {
+            pending: Pending::new(config.max_pending_per_ip, config.max_pending),
+            token_backoff: TokenBackoff::default(),
             config,
+            budget,
             scene,
             telemetry: Arc::new(Telemetry::default()),
             sessions: Mutex::new(BTreeMap::new()),
@@ -151,7 +212,69 @@ impl Hub {
             wake: Condvar::new(),
             shutdown: AtomicBool::new(false),
             started: Instant::now(),
+            render_heartbeat_ms: AtomicU64::new(0),
+            render_stopped: AtomicBool::new(false),
+            last_failure: Mutex::new(None),
+            device_lost: Mutex::new(None),
         }
+    }
+
+    /// Records the loss of the GPU device (from wgpu's device-lost callback).
+    pub(crate) fn lose_device(&self, why: String) {
+        tracing::error!(reason = %why, "the GPU device was lost: every session is closed, restart the server");
+        self.record_failure(format!("the GPU device was lost: {why}"));
+        *lock(&self.device_lost) = Some(why);
+    }
+
+    /// Why the GPU device was lost, if it was.
+    pub(crate) fn device_lost(&self) -> Option<String> {
+        lock(&self.device_lost).clone()
+    }
+
+    /// Called by the render loop every time round (frame or idle wait).
+    pub(crate) fn heartbeat(&self) {
+        self.render_heartbeat_ms
+            .store(self.started.elapsed().as_millis() as u64, Relaxed);
+    }
+
+    pub(crate) fn render_stopped(&self) {
+        self.render_stopped.store(true, Relaxed);
+    }
+
+    /// Records a render failure or caught panic for `/healthz`.
+    pub(crate) fn record_failure(&self, what: String) {
+        *lock(&self.last_failure) = Some((Instant::now(), what));
+    }
+
+    pub(crate) fn health(&self) -> Health {
+        let mut reasons = Vec::new();
+        let now_ms = self.started.elapsed().as_millis() as u64;
+        let beat_age_ms = now_ms.saturating_sub(self.render_heartbeat_ms.load(Relaxed));
+        let lost = self.device_lost();
+        let rendering = if let Some(why) = &lost {
+            reasons.push(format!(
+                "the GPU device was lost ({why}); restart the server"
+            ));
+            false
+        } else if self.render_stopped.load(Relaxed) {
+            reasons.push("the render loop has stopped".to_string());
+            false
+        } else if beat_age_ms > HEARTBEAT_STALE.as_millis() as u64 {
+            reasons.push(format!(
+                "the render loop has not advanced for {:.1} s",
+                beat_age_ms as f64 / 1e3
+            ));
+            false
+        } else {
+            true
+        };
+        if let Some((at, what)) = lock(&self.last_failure).as_ref() {
+            let age = at.elapsed();
+            if age < FAILURE_MEMORY {
+                reasons.push(format!("{what} ({:.1} s ago)", age.as_secs_f64()));
+            }
+        }
+        Health { rendering, reasons }
     }
 
     /// The scene's default viewpoints for a new session of `spec`.
@@ -172,11 +295,20 @@ impl Hub {
         spec: SessionSpec,
     ) -> Result<SessionGuard, ProtocolError> {
         let poses = self.default_poses(&spec);
+        if let Some(why) = self.device_lost() {
+            return Err(ProtocolError::new(
+                ErrorCode::RenderFailed,
+                format!(
+                    "the server's GPU device was lost ({why}); it cannot render until restarted"
+                ),
+            ));
+        }
         let mut sessions = lock(&self.sessions);
         let used = views_of(&sessions);
         if used + spec.views as usize > self.config.max_views {
             return Err(full_error(spec.views, used, self.config.max_views));
         }
+        self.admit(sessions.values().map(|s| s.view().spec), &spec)?;
         let id = self.next_id.fetch_add(1, Relaxed);
         let shared = Arc::new(SessionShared {
             id,
@@ -189,6 +321,8 @@ impl Hub {
             encoding: AtomicBool::new(false),
             dropped: AtomicU64::new(0),
             sent: AtomicU64::new(0),
+            failure: Mutex::new(None),
+            failed: Notify::new(),
         });
         sessions.insert(id, shared.clone());
         drop(sessions);
@@ -218,11 +352,31 @@ impl Hub {
         if others + spec.views as usize > self.config.max_views {
             return Err(full_error(spec.views, others, self.config.max_views));
         }
+        self.admit(
+            sessions
+                .values()
+                .filter(|s| s.id != session.id)
+                .map(|s| lock(&s.view).spec),
+            &spec,
+        )?;
         if view.spec.pose_count() != spec.pose_count() {
             view.poses = defaults;
         }
         view.spec = spec;
         Ok(view.clone())
+    }
+
+    /// Checks `spec` against the cost budget next to the `others` already admitted.
+    fn admit(
+        &self,
+        others: impl Iterator<Item = SessionSpec>,
+        spec: &SessionSpec,
+    ) -> Result<(), ProtocolError> {
+        let mut used = Usage::default();
+        for s in others {
+            used.add(&s);
+        }
+        self.budget.admit(&used, spec, &self.config.spec_limits())
     }
 
     /// Sessions and views now.

@@ -9,14 +9,18 @@
 //! - `session`: one connection — handshake, validation, rate limits, sending.
 //! - `http`: routes (`/`, `/ws`, `/healthz`, `/metrics`).
 //!
-//! Threads: tokio tasks do all I/O; one std thread renders; a small rayon pool encodes.
+//! Threads: tokio tasks do all I/O; one std thread renders, another builds renderers for
+//! new view sizes; a small rayon pool encodes.
 //! Nothing on the I/O side waits for the GPU and the render thread waits for no client.
 
+mod admission;
+mod budget;
 mod cli;
 pub mod config;
 mod encode;
 mod http;
 mod hub;
+mod listen;
 pub mod protocol;
 mod render_loop;
 mod session;
@@ -30,7 +34,6 @@ use crate::gpu::GpuContext;
 use crate::render::Settings;
 use crate::scene::{Bvh, Scene};
 use anyhow::Context as _;
-use axum::serve::ListenerExt as _;
 use hub::Hub;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -86,20 +89,20 @@ impl Server {
             .await
             .with_context(|| format!("binding {bind} (is another server running? try --port)"))?;
         let addr = listener.local_addr()?;
-        let send_buffer = config.send_buffer_bytes;
-        let listener = listener.tap_io(move |tcp| {
-            // Frames queue in the client's latest-frame slot, not in the kernel: a small
-            // send buffer keeps a slow client's frames fresh instead of seconds late.
-            let sock = socket2::SockRef::from(&*tcp);
-            if let Err(e) = sock
-                .set_send_buffer_size(send_buffer)
-                .and_then(|()| tcp.set_nodelay(true))
-            {
-                tracing::debug!(error = %e, "setting socket options");
+        let budget = budget::Budget {
+            settings,
+            max_binding_bytes: ctx.max_storage_binding,
+            max_pixels_per_frame: config.max_pixels_per_frame,
+        };
+        let hub = Arc::new(Hub::new(config, scene, budget));
+        let lost_hub = Arc::downgrade(&hub);
+        ctx.device.set_device_lost_callback(move |reason, message| {
+            if let Some(hub) = lost_hub.upgrade() {
+                if !hub.shutdown.load(std::sync::atomic::Ordering::Relaxed) {
+                    hub.lose_device(format!("{reason:?}: {message}"));
+                }
             }
         });
-
-        let hub = Arc::new(Hub::new(config, scene));
         let render_loop = render_loop::RenderLoop::new(hub.clone(), ctx, bvh, settings)?;
         let render = std::thread::Builder::new()
             .name("fogcast-render".into())
@@ -109,17 +112,7 @@ impl Server {
             hub: hub.clone(),
             shutdown: shutdown_rx.clone(),
         });
-        let mut stop = shutdown_rx;
-        let http = tokio::spawn(async move {
-            axum::serve(
-                listener,
-                app.into_make_service_with_connect_info::<SocketAddr>(),
-            )
-            .with_graceful_shutdown(async move {
-                let _ = stop.wait_for(|s| *s).await;
-            })
-            .await
-        });
+        let http = tokio::spawn(listen::serve(listener, app, hub.clone(), shutdown_rx));
         tracing::info!(%addr, scene = %hub.scene.name, max_views = hub.config.max_views, fps = hub.config.fps, "serving");
         Ok(Server {
             addr,

@@ -240,6 +240,14 @@ pub enum ErrorCode {
     TooManyErrors,
     /// The server is shutting down.
     ShuttingDown,
+    /// Rendering this session's views failed on the server (the session is closed; the
+    /// server and other sessions go on).
+    RenderFailed,
+    /// No frame reached the session within the server's frame timeout.
+    NoFrames,
+    /// The views asked for would exceed what the GPU can bind or the server's
+    /// per-frame pixel budget; the message names the limit and the largest size that fits.
+    OverBudget,
 }
 
 impl ErrorCode {
@@ -261,6 +269,9 @@ impl ErrorCode {
             ErrorCode::RateLimited => "rate_limited",
             ErrorCode::TooManyErrors => "too_many_errors",
             ErrorCode::ShuttingDown => "shutting_down",
+            ErrorCode::RenderFailed => "render_failed",
+            ErrorCode::NoFrames => "no_frames",
+            ErrorCode::OverBudget => "over_budget",
         }
     }
 
@@ -271,6 +282,8 @@ impl ErrorCode {
             ErrorCode::MessageTooLarge => 1009,
             ErrorCode::ServerFull => 1013,
             ErrorCode::ShuttingDown => 1001,
+            ErrorCode::RenderFailed | ErrorCode::NoFrames => 1011,
+            ErrorCode::OverBudget => 4413,
             ErrorCode::TooManyErrors => 1008,
             ErrorCode::Unauthorized => 4401,
             ErrorCode::HelloTimeout => 4408,

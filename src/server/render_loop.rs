@@ -9,16 +9,22 @@
 //! its own [`Renderer`] — its per-viewer volumes fit that size, so groups do not
 //! reallocate each other's volumes every frame — and the world-space grid is updated
 //! once per group. Clients that pick the same resolution therefore share everything.
+//! A new size's renderer is built on a builder thread; its views wait until it is ready
+//! while every other group renders on. A failed or panicking render call closes the
+//! sessions of that size only (`render_failed`); a panic elsewhere drops the frame.
 
+use super::config::FaultKind;
 use super::encode::EncodeJob;
 use super::hub::{Hub, SessionSnapshot};
+use super::protocol::{ErrorCode, ProtocolError};
 use super::telemetry::DropReason;
 use crate::gpu::GpuContext;
 use crate::render::{Renderer, Settings};
 use crate::scene::Bvh;
-use std::collections::{BTreeMap, HashMap};
-use std::sync::atomic::Ordering::{AcqRel, Relaxed};
-use std::sync::Arc;
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::Ordering::{AcqRel, Relaxed, Release};
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 /// Renderers kept for view sizes no session uses right now (a client that reconnects or
@@ -33,11 +39,66 @@ struct CachedRenderer {
 pub(crate) struct RenderLoop {
     hub: Arc<Hub>,
     ctx: Arc<GpuContext>,
-    bvh: Bvh,
-    settings: Settings,
     encoders: rayon::ThreadPool,
     renderers: HashMap<(u32, u32), CachedRenderer>,
+    /// Sizes whose renderer the builder thread is making.
+    building: HashSet<(u32, u32)>,
+    /// Sizes whose renderer could not be built, with the error (reported once).
+    build_failed: HashMap<(u32, u32), String>,
+    build_tx: mpsc::Sender<(u32, u32)>,
+    built_rx: mpsc::Receiver<Built>,
     frame: u64,
+}
+
+/// A renderer from the builder thread, for one view size.
+type Built = ((u32, u32), Result<Renderer, String>);
+
+/// Builds renderers for new view sizes (pipelines and the shared grid: 140–190 ms on a
+/// GPU, more on lavapipe) off the render thread, so a client asking for a new size
+/// does not stall the frame for everyone; its views are rendered once it is ready.
+fn run_builder(
+    ctx: Arc<GpuContext>,
+    hub: Arc<Hub>,
+    bvh: Bvh,
+    settings: Settings,
+    requests: mpsc::Receiver<(u32, u32)>,
+    built: mpsc::Sender<Built>,
+) {
+    for (width, height) in requests {
+        let started = Instant::now();
+        let slow = hub
+            .config
+            .fault
+            .is_some_and(|f| f.kind == FaultKind::SlowBuild && f.view_width == width);
+        if slow {
+            std::thread::sleep(Duration::from_secs(3));
+        }
+        let result = catch_unwind(AssertUnwindSafe(|| {
+            Renderer::with_bvh(ctx.clone(), hub.scene.clone(), &bvh, settings)
+        }));
+        let result = match result {
+            Ok(Ok(r)) => {
+                tracing::info!(
+                    width,
+                    height,
+                    ms = started.elapsed().as_millis() as u64,
+                    "renderer created for a new view size"
+                );
+                Ok(r)
+            }
+            Ok(Err(e)) => Err(format!("creating a renderer: {e:#}")),
+            Err(panic) => {
+                hub.telemetry.render_panics.fetch_add(1, Relaxed);
+                Err(format!(
+                    "creating a renderer panicked: {}",
+                    panic_message(&*panic)
+                ))
+            }
+        };
+        if built.send(((width, height), result)).is_err() {
+            return;
+        }
+    }
 }
 
 impl RenderLoop {
@@ -55,23 +116,47 @@ impl RenderLoop {
             .num_threads(threads)
             .thread_name(|i| format!("fogcast-encode-{i}"))
             .build()?;
+        let (build_tx, requests) = mpsc::channel();
+        let (built, built_rx) = mpsc::channel();
+        let builder_hub = hub.clone();
+        std::thread::Builder::new()
+            .name("fogcast-build".into())
+            .spawn({
+                let ctx = ctx.clone();
+                move || run_builder(ctx, builder_hub, bvh, settings, requests, built)
+            })?;
         Ok(RenderLoop {
             hub,
             ctx,
-            bvh,
-            settings,
             encoders,
             renderers: HashMap::new(),
+            building: HashSet::new(),
+            build_failed: HashMap::new(),
+            build_tx,
+            built_rx,
             frame: 0,
         })
     }
 
     /// Runs until the hub shuts down.
     pub(crate) fn run(mut self) {
+        let hub = self.hub.clone();
+        self.run_frames();
+        hub.render_stopped();
+    }
+
+    fn run_frames(&mut self) {
         let period = Duration::from_secs_f64(1.0 / self.hub.config.fps);
         let mut next = Instant::now();
         while !self.hub.shutdown.load(Relaxed) {
-            let sessions = self.hub.snapshot();
+            self.hub.heartbeat();
+            // Sessions already marked failed are closing; nothing is rendered for them.
+            let sessions: Vec<_> = self
+                .hub
+                .snapshot()
+                .into_iter()
+                .filter(|s| !s.session.is_failed())
+                .collect();
             if sessions.is_empty() {
                 self.evict_idle();
                 self.hub.wait_for_sessions(Duration::from_millis(250));
@@ -79,7 +164,15 @@ impl RenderLoop {
                 continue;
             }
             let started = Instant::now();
-            self.render_frame(sessions);
+            // A panic anywhere in the frame (outside a render call, which is caught on
+            // its own) drops this frame; the renderers may be mid-update, so they go too.
+            if let Err(panic) = catch_unwind(AssertUnwindSafe(|| self.render_frame(sessions))) {
+                let what = format!("the render loop panicked: {}", panic_message(&*panic));
+                tracing::error!(error = %what, "frame dropped");
+                self.hub.telemetry.render_panics.fetch_add(1, Relaxed);
+                self.hub.record_failure(what);
+                self.renderers.clear();
+            }
             self.hub
                 .telemetry
                 .frame_seconds
@@ -98,6 +191,19 @@ impl RenderLoop {
 
     fn render_frame(&mut self, sessions: Vec<SessionSnapshot>) {
         self.frame += 1;
+        if let Some(why) = self.hub.device_lost() {
+            let e = ProtocolError::new(
+                ErrorCode::RenderFailed,
+                format!(
+                    "the server's GPU device was lost ({why}); it cannot render until restarted"
+                ),
+            );
+            for s in &sessions {
+                s.session.fail(e.clone());
+            }
+            return;
+        }
+        self.collect_built();
         let frame_no = self.frame as u32;
         let time_s = (self.hub.started.elapsed().as_secs_f64() % 86_400.0) as f32;
         // Views grouped by size: (session index, view index) per camera.
@@ -120,27 +226,75 @@ impl RenderLoop {
                 .iter()
                 .map(|&(si, vi)| sessions[si].cameras[vi])
                 .collect();
-            let renderer = match self.renderer_for(*w, *h) {
-                Ok(r) => r,
-                Err(e) => {
-                    self.hub.telemetry.render_errors.fetch_add(1, Relaxed);
-                    tracing::error!(width = w, height = h, error = %format!("{e:#}"), "creating a renderer failed");
-                    continue;
+            let fault = self
+                .hub
+                .config
+                .fault
+                .filter(|f| f.view_width == *w)
+                .map(|f| f.kind);
+            if fault == Some(FaultKind::Skip) {
+                continue;
+            }
+            let result = catch_unwind(AssertUnwindSafe(|| {
+                if fault == Some(FaultKind::RenderPanic) {
+                    panic!("injected render panic for {w}×{h} views");
                 }
-            };
-            match renderer.render(&cameras, *w, *h, time_s) {
-                Ok(out) => {
+                if fault == Some(FaultKind::RenderError) {
+                    anyhow::bail!("injected render error for {w}×{h} views");
+                }
+                if fault == Some(FaultKind::DeviceLost) {
+                    self.ctx.device.destroy();
+                }
+                let device = self.ctx.device.clone();
+                let Some(renderer) = self.renderer_for(*w, *h)? else {
+                    return Ok(None);
+                };
+                // wgpu errors of this render call come back here as an error instead of
+                // reaching the default handler (which panics).
+                let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+                let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+                let out = renderer.render(&cameras, *w, *h, time_s);
+                let invalid = pollster::block_on(validation.pop());
+                let out_of_memory = pollster::block_on(oom.pop());
+                if let Some(e) = invalid.or(out_of_memory) {
+                    anyhow::bail!("wgpu: {e}");
+                }
+                out.map(Some)
+            }));
+            let error = match result {
+                // Its renderer is being built: these views wait a frame or a few.
+                Ok(Ok(None)) => continue,
+                Ok(Ok(Some(out))) => {
                     self.hub.telemetry.record_render(&out.stats);
                     let us = (out.stats.frame_ms * 1e3) as u32;
                     for (&(si, vi), img) in members.iter().zip(out.images) {
                         images[si][vi] = Some(img);
                         render_us[si] = render_us[si].max(us);
                     }
+                    continue;
                 }
-                Err(e) => {
+                Ok(Err(e)) => {
                     self.hub.telemetry.render_errors.fetch_add(1, Relaxed);
-                    tracing::error!(width = w, height = h, views = cameras.len(), error = %format!("{e:#}"), "render failed");
+                    format!("{e:#}")
                 }
+                Err(panic) => {
+                    self.hub.telemetry.render_panics.fetch_add(1, Relaxed);
+                    // The renderer may be half-updated: build a fresh one next time.
+                    self.renderers.remove(&(*w, *h));
+                    format!("panic: {}", panic_message(&*panic))
+                }
+            };
+            // Loud and contained: every session with a view of this size is told and
+            // closed; the other size groups of this frame go on.
+            tracing::error!(width = w, height = h, views = cameras.len(), error = %error, "render failed; closing the sessions of this view size");
+            self.hub
+                .record_failure(format!("rendering {w}×{h} views failed: {error}"));
+            let e = ProtocolError::new(
+                ErrorCode::RenderFailed,
+                format!("rendering this session's {w}×{h} views failed on the server: {error}"),
+            );
+            for &(si, _) in members {
+                sessions[si].session.fail(e.clone());
             }
         }
         self.hub.telemetry.frames.fetch_add(1, Relaxed);
@@ -162,45 +316,74 @@ impl RenderLoop {
                 render_us,
             };
             let hub = self.hub.clone();
-            self.encoders.spawn(move || job.run(&hub));
+            let panics = self.hub.config.fault.is_some_and(|f| {
+                f.kind == FaultKind::EncodePanic && f.view_width == job.spec.view_width
+            });
+            self.encoders.spawn(move || {
+                let session = job.session.clone();
+                let result = catch_unwind(AssertUnwindSafe(|| {
+                    if panics {
+                        panic!("injected encoder panic");
+                    }
+                    job.run(&hub)
+                }));
+                if let Err(panic) = result {
+                    // A panic in a rayon job would abort the process; this frame is
+                    // dropped instead and the session's next one is encoded as usual.
+                    let what = format!("a JPEG encoder panicked: {}", panic_message(&*panic));
+                    tracing::error!(session = session.id, error = %what, "frame dropped");
+                    hub.telemetry.encode_panics.fetch_add(1, Relaxed);
+                    hub.record_failure(what);
+                    session.encoding.store(false, Release);
+                }
+            });
         }
         self.evict_idle();
     }
 
-    fn renderer_for(&mut self, width: u32, height: u32) -> anyhow::Result<&mut Renderer> {
-        let frame = self.frame;
-        if !self.renderers.contains_key(&(width, height)) {
-            let started = Instant::now();
-            let renderer = Renderer::with_bvh(
-                self.ctx.clone(),
-                self.hub.scene.clone(),
-                &self.bvh,
-                self.settings,
-            )?;
-            tracing::info!(
-                width,
-                height,
-                ms = started.elapsed().as_millis() as u64,
-                "renderer created for a new view size"
-            );
-            self.renderers.insert(
-                (width, height),
-                CachedRenderer {
-                    renderer,
-                    last_frame: frame,
-                },
-            );
-            self.hub
-                .telemetry
-                .renderers
-                .store(self.renderers.len() as i64, Relaxed);
+    /// Takes the renderers the builder finished.
+    fn collect_built(&mut self) {
+        while let Ok((size, result)) = self.built_rx.try_recv() {
+            self.building.remove(&size);
+            match result {
+                Ok(renderer) => {
+                    self.renderers.insert(
+                        size,
+                        CachedRenderer {
+                            renderer,
+                            last_frame: self.frame,
+                        },
+                    );
+                }
+                Err(e) => {
+                    self.build_failed.insert(size, e);
+                }
+            }
         }
-        let cached = self
+        self.hub
+            .telemetry
             .renderers
-            .get_mut(&(width, height))
-            .expect("inserted above");
-        cached.last_frame = frame;
-        Ok(&mut cached.renderer)
+            .store(self.renderers.len() as i64, Relaxed);
+    }
+
+    /// The renderer for views of this size; `None` while the builder makes it (asked
+    /// for here the first time), an error when it could not be built.
+    fn renderer_for(&mut self, width: u32, height: u32) -> anyhow::Result<Option<&mut Renderer>> {
+        let size = (width, height);
+        if let Some(e) = self.build_failed.remove(&size) {
+            anyhow::bail!(e);
+        }
+        let frame = self.frame;
+        if let Some(cached) = self.renderers.get_mut(&size) {
+            cached.last_frame = frame;
+            return Ok(Some(&mut cached.renderer));
+        }
+        if self.building.insert(size) {
+            self.build_tx
+                .send(size)
+                .map_err(|_| anyhow::anyhow!("the renderer builder thread has stopped"))?;
+        }
+        Ok(None)
     }
 
     /// Drops the least recently used renderers beyond those in use plus a few idle ones.
@@ -223,4 +406,13 @@ impl RenderLoop {
             .renderers
             .store(self.renderers.len() as i64, Relaxed);
     }
+}
+
+/// The text of a caught panic's payload.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "(no message)".into())
 }

@@ -4,15 +4,17 @@
 //! mid-frame — drops the session guard and frees everything the session held.
 
 use super::hub::{layout_name, ConnectionGuard, Hub, SessionShared};
+use super::listen::Slot;
 use super::protocol::{
     check_pose, clip, parse_client_message, CheckedPose, ClientMessage, ErrorCode, ErrorMessage,
     Hello, Limits, ProtocolError, ServerMessage, SessionSpec, Welcome, FOV_RANGE_DEG,
     FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
 };
+use super::telemetry::DropReason;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
 use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt as _, StreamExt as _};
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -23,8 +25,11 @@ const CLOSE_GRACE: Duration = Duration::from_secs(2);
 /// Non-fatal errors a session may cause per [`ERROR_WINDOW`] before it is closed.
 const MAX_ERRORS_PER_WINDOW: u32 = 20;
 const ERROR_WINDOW: Duration = Duration::from_secs(10);
-/// Control messages (errors, welcomes) queued for the writer; more are dropped.
-const CONTROL_QUEUE: usize = 8;
+/// Control messages (welcomes, errors) waiting for the writer. They are never dropped:
+/// a client that leaves this many replies unread is closed for flooding instead.
+const CONTROL_QUEUE: usize = 32;
+/// Configures a session may send in a burst (then `max_configures_per_s`).
+const CONFIGURE_BURST: f64 = 4.0;
 
 type Sink = SplitSink<WebSocket, Message>;
 type Stream = SplitStream<WebSocket>;
@@ -32,6 +37,8 @@ type Stream = SplitStream<WebSocket>;
 /// A message for the writer.
 enum Control {
     Text(String),
+    /// A welcome for `spec`: from now on only frames of its size are sent.
+    Welcome(String, SessionSpec),
     /// Send this fatal error and a close frame, then stop.
     Close(ProtocolError),
 }
@@ -87,6 +94,36 @@ impl RateLimiter {
     }
 }
 
+/// Token bucket for `configure` (each may build a renderer on the render thread).
+struct ConfigureLimiter {
+    rate: f64,
+    tokens: f64,
+    last: Instant,
+}
+
+impl ConfigureLimiter {
+    fn new(rate: f64) -> ConfigureLimiter {
+        ConfigureLimiter {
+            rate,
+            tokens: CONFIGURE_BURST,
+            last: Instant::now(),
+        }
+    }
+
+    fn take(&mut self) -> bool {
+        let now = Instant::now();
+        self.tokens = (self.tokens + now.duration_since(self.last).as_secs_f64() * self.rate)
+            .min(CONFIGURE_BURST);
+        self.last = now;
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
 fn error_json(e: &ProtocolError, fatal: bool) -> String {
     ServerMessage::Error(ErrorMessage {
         code: e.code,
@@ -94,6 +131,12 @@ fn error_json(e: &ProtocolError, fatal: bool) -> String {
         fatal,
     })
     .to_json()
+}
+
+/// An error for the log: its message may quote client text (a type name, a version),
+/// so newlines, ANSI escapes and other control characters are escaped, never written raw.
+fn for_log(e: &ProtocolError) -> String {
+    e.to_string().escape_debug().to_string()
 }
 
 /// Close reasons are limited to 123 bytes by RFC 6455.
@@ -131,23 +174,41 @@ async fn close_with(sink: &mut Sink, stream: &mut Stream, hub: &Hub, e: Protocol
     }
 }
 
+/// Sends a fatal error and a close frame (bounded by [`CLOSE_GRACE`]).
+async fn send_close(sink: &mut Sink, hub: &Hub, e: ProtocolError) {
+    hub.telemetry.client_error(e.code, true);
+    let frame = CloseFrame {
+        code: e.code.close_code(),
+        reason: close_reason(&e),
+    };
+    let send = async {
+        sink.send(Message::Text(error_json(&e, true).into()))
+            .await?;
+        sink.send(Message::Close(Some(frame))).await
+    };
+    let _ = tokio::time::timeout(CLOSE_GRACE, send).await;
+}
+
 /// Runs a session to its end. `shutdown` turns true when the server stops.
 pub(crate) async fn run(
     socket: WebSocket,
     hub: Arc<Hub>,
     peer: SocketAddr,
     shutdown: watch::Receiver<bool>,
-    _conn: ConnectionGuard,
+    pending: Option<Slot>,
 ) {
     let (mut sink, mut stream) = socket.split();
     let mut limiter = RateLimiter::new(hub.config.max_messages_per_s);
     let hello_timeout = Duration::from_secs_f64(hub.config.hello_timeout_s);
-    let spec = match tokio::time::timeout(hello_timeout, handshake(&mut stream, &hub, &mut limiter))
-        .await
+    let spec = match tokio::time::timeout(
+        hello_timeout,
+        handshake(&mut stream, &hub, peer, &mut limiter),
+    )
+    .await
     {
         Ok(Ok(spec)) => spec,
         Ok(Err(Some(e))) => {
-            tracing::info!(%peer, error = %e, "handshake refused");
+            tracing::info!(%peer, error = %for_log(&e), "handshake refused");
             return close_with(&mut sink, &mut stream, &hub, e).await;
         }
         Ok(Err(None)) => return,
@@ -162,10 +223,23 @@ pub(crate) async fn run(
             return close_with(&mut sink, &mut stream, &hub, e).await;
         }
     };
+    // Past the hello: the connection no longer counts as pending against its address,
+    // and now counts against the server's sessions.
+    drop(pending);
+    let Some(_conn) = ConnectionGuard::try_new(&hub.telemetry, hub.config.max_connections) else {
+        let e = ProtocolError::new(
+            ErrorCode::ServerFull,
+            format!(
+                "the server serves at most {} sessions; try again later",
+                hub.config.max_connections
+            ),
+        );
+        return close_with(&mut sink, &mut stream, &hub, e).await;
+    };
     let guard = match hub.register(spec) {
         Ok(g) => g,
         Err(e) => {
-            tracing::info!(%peer, error = %e, "session refused");
+            tracing::info!(%peer, error = %for_log(&e), "session refused");
             return close_with(&mut sink, &mut stream, &hub, e).await;
         }
     };
@@ -177,7 +251,7 @@ pub(crate) async fn run(
     }
     let (ctl_tx, ctl_rx) = mpsc::channel(CONTROL_QUEUE);
     let session = guard.session.clone();
-    let mut writer = std::pin::pin!(write_loop(sink, &hub, &session, ctl_rx, shutdown));
+    let mut writer = std::pin::pin!(write_loop(sink, &hub, &session, spec, ctl_rx, shutdown));
     let mut reader = std::pin::pin!(read_loop(stream, &hub, &session, ctl_tx, limiter));
     let end = tokio::select! {
         end = &mut writer => end,
@@ -202,6 +276,7 @@ pub(crate) async fn run(
 async fn handshake(
     stream: &mut Stream,
     hub: &Hub,
+    peer: SocketAddr,
     limiter: &mut RateLimiter,
 ) -> Result<SessionSpec, Option<ProtocolError>> {
     loop {
@@ -234,11 +309,11 @@ async fn handshake(
             }
             Err(e) => return Err(Some(e)),
         };
-        return check_hello(&hello, hub).map_err(Some);
+        return check_hello(&hello, hub, peer.ip()).map_err(Some);
     }
 }
 
-fn check_hello(h: &Hello, hub: &Hub) -> Result<SessionSpec, ProtocolError> {
+fn check_hello(h: &Hello, hub: &Hub, ip: IpAddr) -> Result<SessionSpec, ProtocolError> {
     if h.version != PROTOCOL_VERSION {
         return Err(ProtocolError::new(
             ErrorCode::UnsupportedVersion,
@@ -249,6 +324,15 @@ fn check_hello(h: &Hello, hub: &Hub) -> Result<SessionSpec, ProtocolError> {
         ));
     }
     if let Some(want) = &hub.config.token {
+        if let Err(wait) = hub.token_backoff.check(ip) {
+            return Err(ProtocolError::new(
+                ErrorCode::Unauthorized,
+                format!(
+                    "too many wrong tokens from this address: retry in {:.1} s",
+                    wait.as_secs_f64()
+                ),
+            ));
+        }
         match &h.token {
             None => {
                 return Err(ProtocolError::new(
@@ -257,16 +341,18 @@ fn check_hello(h: &Hello, hub: &Hub) -> Result<SessionSpec, ProtocolError> {
                 ))
             }
             Some(t) if !constant_time_eq(t.as_bytes(), want.as_bytes()) => {
-                return Err(ProtocolError::new(ErrorCode::Unauthorized, "wrong token"))
+                let wait = hub.token_backoff.failed(ip);
+                tracing::info!(%ip, backoff_s = wait.as_secs_f64(), "wrong token");
+                return Err(ProtocolError::new(ErrorCode::Unauthorized, "wrong token"));
             }
-            Some(_) => {}
+            Some(_) => hub.token_backoff.succeeded(ip),
         }
     }
     SessionSpec::from_hello(h, &hub.config.spec_limits())
 }
 
 /// Compares without an early exit, so response time does not leak the token's prefix.
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+pub(crate) fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
@@ -321,24 +407,26 @@ async fn write_loop(
     mut sink: Sink,
     hub: &Hub,
     session: &SessionShared,
+    mut announced: SessionSpec,
     mut ctl: mpsc::Receiver<Control>,
     mut shutdown: watch::Receiver<bool>,
 ) -> &'static str {
     let stall = Duration::from_secs_f64(hub.config.stall_timeout_s);
+    let frame_timeout = Duration::from_secs_f64(hub.config.frame_timeout_s);
+    let mut last_frame = tokio::time::Instant::now();
     loop {
         let msg = tokio::select! {
             biased;
             c = ctl.recv() => match c {
                 Some(Control::Text(t)) => Message::Text(t.into()),
+                Some(Control::Welcome(t, spec)) => {
+                    announced = spec;
+                    Message::Text(t.into())
+                }
                 Some(Control::Close(e)) => {
-                    hub.telemetry.client_error(e.code, true);
-                    let frame = CloseFrame { code: e.code.close_code(), reason: close_reason(&e) };
-                    let send = async {
-                        sink.send(Message::Text(error_json(&e, true).into())).await?;
-                        sink.send(Message::Close(Some(frame))).await
-                    };
-                    let _ = tokio::time::timeout(CLOSE_GRACE, send).await;
-                    return e.code.as_str();
+                    let code = e.code.as_str();
+                    send_close(&mut sink, hub, e).await;
+                    return code;
                 }
                 None => return "reader ended",
             },
@@ -348,11 +436,33 @@ async fn write_loop(
                 let _ = tokio::time::timeout(CLOSE_GRACE, sink.send(Message::Close(Some(frame)))).await;
                 return "shutdown";
             }
+            e = session.failure() => {
+                let code = e.code.as_str();
+                send_close(&mut sink, hub, e).await;
+                return code;
+            }
+            () = tokio::time::sleep_until(last_frame + frame_timeout) => {
+                // Never leave a session hanging without frames: whatever kept them from
+                // it, the client learns it and can reconnect.
+                hub.telemetry.sessions_starved.fetch_add(1, Relaxed);
+                let e = ProtocolError::new(
+                    ErrorCode::NoFrames,
+                    format!("no frame could be delivered for {} s", hub.config.frame_timeout_s),
+                );
+                tracing::warn!(session = session.id, error = %e, "closing a starved session");
+                send_close(&mut sink, hub, e).await;
+                return "no_frames";
+            }
             () = session.slot.ready() => match session.slot.take() {
+                Some(frame) if !same_size(&frame.spec, &announced) => {
+                    session.count_drop(&hub.telemetry, DropReason::Resized);
+                    continue;
+                }
                 Some(frame) => {
                     let len = frame.bytes.len() as u64;
                     match tokio::time::timeout(stall, sink.send(Message::Binary(frame.bytes))).await {
                         Ok(Ok(())) => {
+                            last_frame = tokio::time::Instant::now();
                             session.sent.fetch_add(1, Relaxed);
                             hub.telemetry.frames_sent.fetch_add(1, Relaxed);
                             hub.telemetry.bytes_sent.fetch_add(len, Relaxed);
@@ -379,6 +489,23 @@ async fn write_loop(
     }
 }
 
+/// Whether frames of spec `a` have the size and tiling the client was told in `b`.
+fn same_size(a: &SessionSpec, b: &SessionSpec) -> bool {
+    (a.layout, a.views, a.width, a.height) == (b.layout, b.views, b.width, b.height)
+}
+
+/// Queues a control message; a client that leaves [`CONTROL_QUEUE`] replies unread is
+/// flooding, and is closed rather than have a reply dropped.
+fn push(ctl: &mpsc::Sender<Control>, c: Control) -> Result<(), ProtocolError> {
+    match ctl.try_send(c) {
+        Ok(()) | Err(mpsc::error::TrySendError::Closed(_)) => Ok(()),
+        Err(mpsc::error::TrySendError::Full(_)) => Err(ProtocolError::new(
+            ErrorCode::RateLimited,
+            format!("{CONTROL_QUEUE} replies unread: the client sends faster than it reads"),
+        )),
+    }
+}
+
 /// Validates and applies client messages until the client leaves or a fatal error.
 async fn read_loop(
     mut stream: Stream,
@@ -389,6 +516,7 @@ async fn read_loop(
 ) {
     let mut errors = 0u32;
     let mut window_start = Instant::now();
+    let mut configures = ConfigureLimiter::new(hub.config.max_configures_per_s);
     let fatal = loop {
         let msg = match stream.next().await {
             Some(Ok(m)) => m,
@@ -408,7 +536,9 @@ async fn read_loop(
                             hub.config.max_messages_per_s
                         ),
                     );
-                    let _ = ctl.try_send(Control::Text(error_json(&e, false)));
+                    if let Err(e) = push(&ctl, Control::Text(error_json(&e, false))) {
+                        break e;
+                    }
                 }
                 continue;
             }
@@ -426,7 +556,7 @@ async fn read_loop(
             Message::Text(t) if t.len() > hub.config.max_message_bytes => {
                 break too_large(t.len(), hub.config.max_message_bytes)
             }
-            Message::Text(t) => handle_text(&t, hub, session),
+            Message::Text(t) => handle_text(&t, hub, session, &mut configures),
             Message::Binary(b) => break binary_error(b.len()),
             // Pings are answered by the WebSocket layer; a close is answered there too,
             // and the stream then ends.
@@ -434,7 +564,9 @@ async fn read_loop(
         };
         match result {
             Ok(Some(reply)) => {
-                let _ = ctl.try_send(Control::Text(reply));
+                if let Err(e) = push(&ctl, reply) {
+                    break e;
+                }
             }
             Ok(None) => {}
             Err(e) => {
@@ -453,11 +585,13 @@ async fn read_loop(
                         ),
                     );
                 }
-                let _ = ctl.try_send(Control::Text(error_json(&e, false)));
+                if let Err(e) = push(&ctl, Control::Text(error_json(&e, false))) {
+                    break e;
+                }
             }
         }
     };
-    tracing::info!(session = session.id, error = %fatal, "closing session");
+    tracing::info!(session = session.id, error = %for_log(&fatal), "closing session");
     // The writer sends the error and the close frame; keep reading so the client's
     // close reply is consumed (the caller bounds how long).
     if ctl.send(Control::Close(fatal)).await.is_ok() {
@@ -465,12 +599,13 @@ async fn read_loop(
     }
 }
 
-/// Applies one text message; `Ok(Some(json))` is a reply to send.
+/// Applies one text message; `Ok(Some(reply))` is a reply to send.
 fn handle_text(
     text: &str,
     hub: &Hub,
     session: &SessionShared,
-) -> Result<Option<String>, ProtocolError> {
+    configures: &mut ConfigureLimiter,
+) -> Result<Option<Control>, ProtocolError> {
     match parse_client_message(text)? {
         ClientMessage::Pose(p) => {
             let spec = session.view().spec;
@@ -479,11 +614,20 @@ fn handle_text(
             Ok(None)
         }
         ClientMessage::Configure(c) => {
+            if !configures.take() {
+                return Err(ProtocolError::new(
+                    ErrorCode::RateLimited,
+                    format!(
+                        "configure is limited to {} per second (bursts of {CONFIGURE_BURST}); this one was not applied",
+                        hub.config.max_configures_per_s
+                    ),
+                ));
+            }
             let spec = session.view().spec;
             let new = spec.configure(&c, &hub.config.spec_limits())?;
             hub.reconfigure(session, new)?;
             tracing::info!(session = session.id, layout = layout_name(new.layout), width = new.width, height = new.height, quality = new.quality, "session reconfigured");
-            Ok(Some(welcome(hub, session)))
+            Ok(Some(Control::Welcome(welcome(hub, session), new)))
         }
         ClientMessage::Hello(h) => Err(ProtocolError::new(
             ErrorCode::InvalidMessage,
@@ -512,6 +656,22 @@ mod tests {
         assert!(s.starts_with("oooooooooo"), "{s}");
         assert_eq!(s.matches('W').count(), 1, "{s}");
         assert!(s.ends_with('F'), "{s}");
+    }
+
+    #[test]
+    fn client_text_is_escaped_in_logs() {
+        // serde quotes an unknown enum variant raw.
+        let e = parse_client_message(
+            r#"{"type":"hello","version":1,"width":64,"height":36,"layout":"x\n\u001b[31mFAKE LOG LINE"}"#,
+        )
+        .unwrap_err();
+        assert!(
+            e.message.contains('\n') && e.message.contains('\u{1b}'),
+            "{e:?}"
+        );
+        let line = for_log(&e);
+        assert!(!line.chars().any(|c| c.is_control()), "{line}");
+        assert!(line.contains("\\n") && line.contains("\\u{1b}"), "{line}");
     }
 
     #[test]

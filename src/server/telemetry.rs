@@ -45,6 +45,9 @@ pub(crate) enum DropReason {
     ClientSlow,
     /// The session's previous frame was still being encoded.
     EncoderBusy,
+    /// Rendered at a size the client has not been told (yet, or any more): a configure
+    /// changed it; only frames of the size in the last welcome are sent.
+    Resized,
 }
 
 /// Every counter of the server.
@@ -54,6 +57,12 @@ pub(crate) struct Telemetry {
     pub(crate) views_rendered: AtomicU64,
     pub(crate) render_calls: AtomicU64,
     pub(crate) render_errors: AtomicU64,
+    /// Panics caught on the render thread (the frame or size group was dropped).
+    pub(crate) render_panics: AtomicU64,
+    /// Panics caught on the encoder pool (that session's frame was dropped).
+    pub(crate) encode_panics: AtomicU64,
+    /// Sessions closed because no frame reached them within the frame timeout.
+    pub(crate) sessions_starved: AtomicU64,
     pub(crate) frame_seconds: Summary,
     pub(crate) render_seconds: Summary,
     pub(crate) encode_seconds: Summary,
@@ -64,6 +73,7 @@ pub(crate) struct Telemetry {
     pub(crate) bytes_sent: AtomicU64,
     dropped_slow: AtomicU64,
     dropped_busy: AtomicU64,
+    dropped_resized: AtomicU64,
     pub(crate) sessions_total: AtomicU64,
     pub(crate) sessions_stalled: AtomicU64,
     pub(crate) connections: AtomicI64,
@@ -107,12 +117,15 @@ impl Telemetry {
         match reason {
             DropReason::ClientSlow => self.dropped_slow.fetch_add(1, Relaxed),
             DropReason::EncoderBusy => self.dropped_busy.fetch_add(1, Relaxed),
+            DropReason::Resized => self.dropped_resized.fetch_add(1, Relaxed),
         };
     }
 
     /// Frames dropped for any reason.
     pub(crate) fn frames_dropped(&self) -> u64 {
-        self.dropped_slow.load(Relaxed) + self.dropped_busy.load(Relaxed)
+        self.dropped_slow.load(Relaxed)
+            + self.dropped_busy.load(Relaxed)
+            + self.dropped_resized.load(Relaxed)
     }
 
     pub(crate) fn client_error(&self, code: ErrorCode, fatal: bool) {
@@ -165,7 +178,7 @@ impl Telemetry {
             &mut o,
             "fogcast_connections_refused_total",
             "counter",
-            "Connections refused at max_connections.",
+            "Sessions refused at max_connections, and connections closed over max_pending_per_ip or max_pending.",
             &[("", n(&self.connections_refused))],
         );
         metric(
@@ -209,6 +222,23 @@ impl Telemetry {
             "counter",
             "Render calls that failed.",
             &[("", n(&self.render_errors))],
+        );
+        metric(
+            &mut o,
+            "fogcast_panics_total",
+            "counter",
+            "Panics caught and contained, per thread kind.",
+            &[
+                ("thread=\"render\"", n(&self.render_panics)),
+                ("thread=\"encode\"", n(&self.encode_panics)),
+            ],
+        );
+        metric(
+            &mut o,
+            "fogcast_sessions_starved_total",
+            "counter",
+            "Sessions closed because no frame reached them within the frame timeout.",
+            &[("", n(&self.sessions_starved))],
         );
         metric(
             &mut o,
@@ -256,7 +286,7 @@ impl Telemetry {
             "fogcast_frames_dropped_total",
             "counter",
             "Session frames dropped: replaced by a newer one before a slow client took it, or skipped while the previous one was encoding.",
-            &[("reason=\"client_slow\"", n(&self.dropped_slow)), ("reason=\"encoder_busy\"", n(&self.dropped_busy))],
+            &[("reason=\"client_slow\"", n(&self.dropped_slow)), ("reason=\"encoder_busy\"", n(&self.dropped_busy)), ("reason=\"resized\"", n(&self.dropped_resized))],
         );
         metric(
             &mut o,

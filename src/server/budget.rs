@@ -1,0 +1,188 @@
+//! The admission budget: views are admitted by what they cost, not by how many there
+//! are. Two limits, both fixed at start: the pixels rendered per frame over every view
+//! (`max_pixels_per_frame`, the frame-time budget), and the largest storage buffer the
+//! adapter binds — the render loop batches all views of one size into one set of
+//! per-viewer volumes, so N views of W×H must fit one binding ([`largest_binding`]).
+//! A hello or configure past either is refused with `over_budget`, naming the limit and
+//! the largest frame of that layout that would fit now; a size the protocol accepts
+//! therefore never fails later for want of memory.
+
+use super::protocol::{ErrorCode, ProtocolError, SessionSpec, SpecLimits};
+use crate::render::{largest_binding, Settings};
+use std::collections::BTreeMap;
+
+/// The limits views are admitted against.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Budget {
+    /// Renderer settings (they size the per-viewer volumes).
+    pub(crate) settings: Settings,
+    /// The adapter's largest storage buffer binding, bytes.
+    pub(crate) max_binding_bytes: u64,
+    /// Pixels per frame over all views.
+    pub(crate) max_pixels_per_frame: u64,
+}
+
+/// What is rendered now: views per view size.
+#[derive(Debug, Default, Clone)]
+pub(crate) struct Usage {
+    views_by_size: BTreeMap<(u32, u32), u64>,
+}
+
+impl Usage {
+    pub(crate) fn add(&mut self, spec: &SessionSpec) {
+        *self
+            .views_by_size
+            .entry((spec.view_width, spec.view_height))
+            .or_default() += spec.views as u64;
+    }
+
+    fn pixels(&self) -> u64 {
+        self.views_by_size
+            .iter()
+            .map(|(&(w, h), &n)| n * w as u64 * h as u64)
+            .sum()
+    }
+}
+
+fn mib(bytes: u64) -> f64 {
+    bytes as f64 / 1048576.0
+}
+
+impl Budget {
+    /// Why `spec` does not fit next to `used`, if it does not.
+    fn exceeds(&self, used: &Usage, spec: &SessionSpec) -> Option<String> {
+        let (w, h) = (spec.view_width, spec.view_height);
+        let asked = spec.views as u64 * w as u64 * h as u64;
+        let in_use = used.pixels();
+        if in_use + asked > self.max_pixels_per_frame {
+            return Some(format!(
+                "{} view(s) of {w}×{h} need {asked} pixels per frame and {in_use} of the server's budget of {} are in use",
+                spec.views, self.max_pixels_per_frame
+            ));
+        }
+        let count = used.views_by_size.get(&(w, h)).copied().unwrap_or(0) + spec.views as u64;
+        let (label, bytes) = largest_binding(&self.settings, count as usize, w, h);
+        (bytes > self.max_binding_bytes).then(|| {
+            format!(
+                "{count} view(s) of {w}×{h} in one batch need a {:.1} MiB {label} buffer but the GPU binds at most {:.1} MiB per buffer",
+                mib(bytes),
+                mib(self.max_binding_bytes)
+            )
+        })
+    }
+
+    /// `Ok` if `spec` fits next to `used`; else an `over_budget` error naming the limit
+    /// and the largest frame of the same layout and aspect that fits now.
+    pub(crate) fn admit(
+        &self,
+        used: &Usage,
+        spec: &SessionSpec,
+        limits: &SpecLimits,
+    ) -> Result<(), ProtocolError> {
+        let Some(why) = self.exceeds(used, spec) else {
+            return Ok(());
+        };
+        let shrunk = |fw: u32| {
+            let fh = ((fw as u64 * spec.height as u64) / spec.width as u64) as u32;
+            SessionSpec::validate(
+                fw,
+                fh,
+                spec.layout,
+                Some(spec.views),
+                Some(spec.quality),
+                Some(spec.eye_distance_m),
+                limits,
+            )
+            .ok()
+            .filter(|s| self.exceeds(used, s).is_none())
+        };
+        // Binary search on the frame width: cost grows with size.
+        let (mut lo, mut hi, mut best) = (1u32, spec.width.saturating_sub(1), None);
+        while lo <= hi {
+            let mid = lo + (hi - lo) / 2;
+            match shrunk(mid) {
+                Some(s) => {
+                    best = Some(s);
+                    lo = mid + 1;
+                }
+                None => hi = mid - 1,
+            }
+        }
+        let offer = match best {
+            Some(s) => format!(
+                "; the largest frame of this layout that fits now is {}×{}",
+                s.width, s.height
+            ),
+            None => "; no frame of this layout fits now, try again later".into(),
+        };
+        Err(ProtocolError::new(
+            ErrorCode::OverBudget,
+            format!("{why}{offer}"),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::server::protocol::Layout;
+
+    const LIMITS: SpecLimits = SpecLimits {
+        max_width: 1920,
+        max_height: 1080,
+        default_quality: 75,
+    };
+
+    fn mono(w: u32, h: u32) -> SessionSpec {
+        SessionSpec::validate(w, h, Layout::Mono, None, None, None, &LIMITS).unwrap()
+    }
+
+    #[test]
+    fn the_fifth_1080p_view_is_refused_with_the_limit_and_an_offer() {
+        let budget = Budget {
+            settings: Settings::default(),
+            max_binding_bytes: 128 << 20,
+            max_pixels_per_frame: u64::MAX,
+        };
+        // The numbers: five 1920×1080 views need 158.2 MiB of froxels.
+        let (label, bytes) = largest_binding(&budget.settings, 5, 1920, 1080);
+        assert_eq!(
+            (label, format!("{:.1}", mib(bytes))),
+            ("froxels", "158.2".into())
+        );
+        let mut used = Usage::default();
+        for _ in 0..4 {
+            budget.admit(&used, &mono(1920, 1080), &LIMITS).unwrap();
+            used.add(&mono(1920, 1080));
+        }
+        let e = budget.admit(&used, &mono(1920, 1080), &LIMITS).unwrap_err();
+        assert_eq!(e.code, ErrorCode::OverBudget);
+        assert!(
+            e.message.contains("158.2 MiB") && e.message.contains("128.0 MiB"),
+            "{}",
+            e.message
+        );
+        // The offer is a size that is admitted.
+        let offer = e.message.rsplit(" is ").next().unwrap();
+        let (w, h) = offer.split_once('×').unwrap();
+        let s = mono(w.parse().unwrap(), h.parse().unwrap());
+        budget.admit(&used, &s, &LIMITS).unwrap();
+        assert!(s.width < 1920 && s.width > 1000, "{offer}");
+        // Another size is its own batch: it fits.
+        budget.admit(&used, &mono(320, 180), &LIMITS).unwrap();
+    }
+
+    #[test]
+    fn pixels_per_frame_are_a_budget() {
+        let budget = Budget {
+            settings: Settings::default(),
+            max_binding_bytes: u64::MAX,
+            max_pixels_per_frame: 1280 * 720 * 3 / 2,
+        };
+        let mut used = Usage::default();
+        used.add(&mono(1280, 720));
+        let e = budget.admit(&used, &mono(1280, 720), &LIMITS).unwrap_err();
+        assert!(e.message.contains("pixels per frame"), "{}", e.message);
+        budget.admit(&used, &mono(320, 180), &LIMITS).unwrap();
+    }
+}
