@@ -509,12 +509,7 @@ impl Renderer {
 
     fn ensure_volumes(&mut self, count: usize, width: u32, height: u32) -> anyhow::Result<()> {
         let s = &self.settings;
-        let layout = ViewerLayout {
-            width,
-            height,
-            froxel_dims: [width.div_ceil(s.froxel_px), height.div_ceil(s.froxel_px)],
-            frustum_dims: [width.div_ceil(s.frustum_px), height.div_ceil(s.frustum_px)],
-        };
+        let layout = ViewerLayout::new(s, width, height);
         let fits = self
             .volumes
             .as_ref()

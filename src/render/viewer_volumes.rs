@@ -15,42 +15,67 @@ pub struct ViewerLayout {
     pub frustum_dims: [u32; 2],
 }
 
+impl ViewerLayout {
+    /// The layout of a `width`×`height` viewer under `settings`.
+    pub fn new(settings: &super::Settings, width: u32, height: u32) -> ViewerLayout {
+        let dims = |px: u32| [width.div_ceil(px), height.div_ceil(px)];
+        ViewerLayout {
+            width,
+            height,
+            froxel_dims: dims(settings.froxel_px),
+            frustum_dims: dims(settings.frustum_px),
+        }
+    }
+}
+
+/// Bytes of each stacked storage buffer of [`ViewerVolumes`] for `count` viewers, in the
+/// order they are allocated: the one list `ViewerVolumes::new` allocates from and
+/// [`largest_binding`] predicts from.
+fn storage_sizes(
+    count: usize,
+    layout: &ViewerLayout,
+    slices: u32,
+    frustum_slices: u32,
+    temporal: bool,
+) -> [(&'static str, u64); 7] {
+    let n = count as u64;
+    let columns = n * (layout.froxel_dims[0] * layout.froxel_dims[1]) as u64;
+    let froxels = columns * slices as u64 * 8;
+    let frustum =
+        n * (layout.frustum_dims[0] * layout.frustum_dims[1] * frustum_slices.max(1)) as u64 * 4;
+    [
+        ("froxels", froxels),
+        ("froxel history", if temporal { froxels } else { 16 }),
+        ("integrated", froxels),
+        ("shadow frustum", frustum),
+        ("tile depth", columns * 4),
+        ("column limit", columns * 4),
+        ("output", n * (layout.width * layout.height) as u64 * 4),
+    ]
+}
+
 /// The largest storage buffer that [`ViewerVolumes`] for `count` views of
-/// `width`×`height` under `settings` would bind, as (label, bytes) — the same sizes
-/// (rounded up to 16 bytes, as `GpuContext::storage` does) that allocation checks
-/// against the adapter's binding limit, so a caller can refuse a size before it fails.
+/// `width`×`height` under `settings` would bind, as (label, bytes) — rounded up to 16
+/// bytes, as `GpuContext::storage` checks it against the adapter's binding limit — so
+/// that a caller can refuse a size before its allocation fails.
 pub fn largest_binding(
     settings: &super::Settings,
     count: usize,
     width: u32,
     height: u32,
 ) -> (&'static str, u64) {
-    let n = count as u64;
-    let froxel_cols =
-        (width.div_ceil(settings.froxel_px) * height.div_ceil(settings.froxel_px)) as u64;
-    let frustum_cols =
-        (width.div_ceil(settings.frustum_px) * height.div_ceil(settings.frustum_px)) as u64;
-    let froxels = n * froxel_cols * settings.slices as u64 * 8;
-    let sizes = [
-        ("froxels", froxels),
-        ("integrated", froxels),
-        (
-            "froxel history",
-            if settings.temporal { froxels } else { 16 },
-        ),
-        (
-            "shadow frustum",
-            n * frustum_cols * settings.frustum_slices().max(1) as u64 * 4,
-        ),
-        ("tile depth", n * froxel_cols * 4),
-        ("output", n * width as u64 * height as u64 * 4),
-    ];
-    sizes
-        .into_iter()
-        .map(|(label, size)| (label, size.max(16).next_multiple_of(16)))
-        // The first of equal sizes, as allocation would fail on it first.
-        .reduce(|a, b| if b.1 > a.1 { b } else { a })
-        .expect("six sizes")
+    storage_sizes(
+        count,
+        &ViewerLayout::new(settings, width, height),
+        settings.slices,
+        settings.frustum_slices(),
+        settings.temporal,
+    )
+    .into_iter()
+    .map(|(label, size)| (label, size.max(16).next_multiple_of(16)))
+    // The first of equal sizes, as allocation fails on it first.
+    .reduce(|a, b| if b.1 > a.1 { b } else { a })
+    .expect("seven sizes")
 }
 
 /// Every viewer's froxel volumes, shadow frustums, G-buffer and output image.
@@ -88,12 +113,9 @@ impl ViewerVolumes {
         frustum_slices: u32,
         temporal: bool,
     ) -> anyhow::Result<ViewerVolumes> {
-        let n = count as u64;
-        let froxels_per_view = (layout.froxel_dims[0] * layout.froxel_dims[1] * slices) as u64;
-        let frustum_per_view =
-            (layout.frustum_dims[0] * layout.frustum_dims[1] * frustum_slices.max(1)) as u64;
-        let pixels = (layout.width * layout.height) as u64;
-        let columns = n * (layout.froxel_dims[0] * layout.froxel_dims[1]) as u64;
+        let [froxels, froxel_history, integrated, frustum, tile_depth, column_limit, output] =
+            storage_sizes(count, &layout, slices, frustum_slices, temporal)
+                .map(|(label, bytes)| ctx.storage(label, bytes, wgpu::BufferUsages::empty()));
         let tex = |label: &str, format: wgpu::TextureFormat| {
             ctx.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
@@ -116,33 +138,13 @@ impl ViewerVolumes {
             layout,
             slices,
             frustum_slices,
-            froxels: ctx.storage(
-                "froxels",
-                n * froxels_per_view * 8,
-                wgpu::BufferUsages::empty(),
-            )?,
-            froxel_history: ctx.storage(
-                "froxel history",
-                if temporal {
-                    n * froxels_per_view * 8
-                } else {
-                    16
-                },
-                wgpu::BufferUsages::empty(),
-            )?,
-            integrated: ctx.storage(
-                "integrated",
-                n * froxels_per_view * 8,
-                wgpu::BufferUsages::empty(),
-            )?,
-            frustum: ctx.storage(
-                "shadow frustum",
-                n * frustum_per_view * 4,
-                wgpu::BufferUsages::empty(),
-            )?,
-            tile_depth: ctx.storage("tile depth", columns * 4, wgpu::BufferUsages::empty())?,
-            column_limit: ctx.storage("column limit", columns * 4, wgpu::BufferUsages::empty())?,
-            output: ctx.storage("output", n * pixels * 4, wgpu::BufferUsages::empty())?,
+            froxels: froxels?,
+            froxel_history: froxel_history?,
+            integrated: integrated?,
+            frustum: frustum?,
+            tile_depth: tile_depth?,
+            column_limit: column_limit?,
+            output: output?,
             gbuf_position: tex("gbuffer position", wgpu::TextureFormat::Rgba32Float),
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
             gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
