@@ -24,7 +24,7 @@ mod volume_integration;
 pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub use shared_grid::SharedShadowGrid;
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming};
-pub use viewer_volumes::{largest_binding, ViewerLayout, ViewerVolumes};
+pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
 
 use crate::gpu::{map_read, GpuContext};
 use crate::scene::{Bvh, Camera, Scene};

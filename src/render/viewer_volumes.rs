@@ -78,6 +78,31 @@ pub fn largest_binding(
     .expect("seven sizes")
 }
 
+/// G-buffer bytes per pixel: position rgba32f, normal rgba16f, albedo rgba8, depth 32f.
+const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 8 + 4 + 4;
+
+/// GPU memory of [`ViewerVolumes`] for `count` views of `width`×`height` under
+/// `settings`: every stacked buffer and the G-buffer (what the server's admission budget
+/// adds up over all view sizes).
+pub fn viewer_memory_bytes(
+    settings: &super::Settings,
+    count: usize,
+    width: u32,
+    height: u32,
+) -> u64 {
+    let buffers: u64 = storage_sizes(
+        count,
+        &ViewerLayout::new(settings, width, height),
+        settings.slices,
+        settings.frustum_slices(),
+        settings.temporal,
+    )
+    .iter()
+    .map(|(_, bytes)| bytes.max(&16).next_multiple_of(16))
+    .sum();
+    buffers + count as u64 * width as u64 * height as u64 * GBUFFER_BYTES_PER_PIXEL
+}
+
 /// Every viewer's froxel volumes, shadow frustums, G-buffer and output image.
 ///
 /// Viewer `i`'s froxels start at `i × froxels_per_view` in each stacked buffer.
@@ -179,7 +204,7 @@ impl ViewerVolumes {
                 "froxel_cull",
                 (self.tile_depth.size() + self.column_limit.size()) / n,
             ),
-            ("gbuffer", pixels * (16 + 8 + 4 + 4)),
+            ("gbuffer", pixels * GBUFFER_BYTES_PER_PIXEL),
             ("output", self.output.size() / n),
         ]
     }

@@ -1,14 +1,16 @@
 //! The admission budget: views are admitted by what they cost, not by how many there
-//! are. Two limits, both fixed at start: the pixels rendered per frame over every view
-//! (`max_pixels_per_frame`, the frame-time budget), and the largest storage buffer the
-//! adapter binds — the render loop batches all views of one size into one set of
-//! per-viewer volumes, so N views of W×H must fit one binding ([`largest_binding`]).
+//! are. Three limits, all fixed at start: the pixels rendered per frame over every view
+//! (`max_pixels_per_frame`, the frame-time budget), the GPU memory of every view's
+//! volumes and G-buffer together (`max_view_memory_mib`, [`viewer_memory_bytes`]), and
+//! the largest storage buffer the adapter binds — the render loop batches all views of
+//! one size into one set of per-viewer volumes, so N views of W×H must fit one binding
+//! ([`largest_binding`]).
 //! A hello or configure past either is refused with `over_budget`, naming the limit and
 //! the largest frame of that layout that would fit now; a size the protocol accepts
 //! therefore never fails later for want of memory.
 
 use super::protocol::{ErrorCode, ProtocolError, SessionSpec, SpecLimits};
-use crate::render::{largest_binding, Settings};
+use crate::render::{largest_binding, viewer_memory_bytes, Settings};
 use std::collections::BTreeMap;
 
 /// The limits views are admitted against.
@@ -20,6 +22,8 @@ pub(crate) struct Budget {
     pub(crate) max_binding_bytes: u64,
     /// Pixels per frame over all views.
     pub(crate) max_pixels_per_frame: u64,
+    /// GPU memory of all views' volumes and G-buffers, bytes.
+    pub(crate) max_view_memory_bytes: u64,
 }
 
 /// What is rendered now: views per view size.
@@ -60,7 +64,21 @@ impl Budget {
                 spec.views, self.max_pixels_per_frame
             ));
         }
-        let count = used.views_by_size.get(&(w, h)).copied().unwrap_or(0) + spec.views as u64;
+        let mut sizes = used.views_by_size.clone();
+        *sizes.entry((w, h)).or_default() += spec.views as u64;
+        let memory: u64 = sizes
+            .iter()
+            .map(|(&(sw, sh), &n)| viewer_memory_bytes(&self.settings, n as usize, sw, sh))
+            .sum();
+        if memory > self.max_view_memory_bytes {
+            return Some(format!(
+                "with {} view(s) of {w}×{h} the views would hold {:.1} MiB of GPU memory and the server's budget is {:.1} MiB",
+                spec.views,
+                mib(memory),
+                mib(self.max_view_memory_bytes)
+            ));
+        }
+        let count = sizes[&(w, h)];
         let (label, bytes) = largest_binding(&self.settings, count as usize, w, h);
         (bytes > self.max_binding_bytes).then(|| {
             format!(
@@ -143,6 +161,7 @@ mod tests {
             settings: Settings::default(),
             max_binding_bytes: 128 << 20,
             max_pixels_per_frame: u64::MAX,
+            max_view_memory_bytes: u64::MAX,
         };
         // The numbers: five 1920×1080 views need 158.2 MiB of froxels.
         let (label, bytes) = largest_binding(&budget.settings, 5, 1920, 1080);
@@ -178,11 +197,46 @@ mod tests {
             settings: Settings::default(),
             max_binding_bytes: u64::MAX,
             max_pixels_per_frame: 1280 * 720 * 3 / 2,
+            max_view_memory_bytes: u64::MAX,
         };
         let mut used = Usage::default();
         used.add(&mono(1280, 720));
         let e = budget.admit(&used, &mono(1280, 720), &LIMITS).unwrap_err();
         assert!(e.message.contains("pixels per frame"), "{}", e.message);
         budget.admit(&used, &mono(320, 180), &LIMITS).unwrap();
+    }
+
+    #[test]
+    fn views_memory_is_a_budget() {
+        // One 1280×720 view: froxels and integrated 2 × 160×90×128×8 B, the frustum,
+        // culling columns, output and a 32 B/px G-buffer: about 66 MiB.
+        let one = viewer_memory_bytes(&Settings::default(), 1, 1280, 720);
+        assert!((60 << 20..72 << 20).contains(&one), "{one}");
+        // Views of one size stack (the 16-byte history stub is one per batch).
+        let three = viewer_memory_bytes(&Settings::default(), 3, 1280, 720);
+        assert!(3 * one - three <= 32, "{three} vs 3 × {one}");
+        let budget = Budget {
+            settings: Settings::default(),
+            max_binding_bytes: u64::MAX,
+            max_pixels_per_frame: u64::MAX,
+            max_view_memory_bytes: one * 5 / 2,
+        };
+        let mut used = Usage::default();
+        used.add(&mono(1280, 720));
+        used.add(&mono(1280, 720));
+        let e = budget.admit(&used, &mono(1280, 720), &LIMITS).unwrap_err();
+        assert_eq!(e.code, ErrorCode::OverBudget);
+        assert!(e.message.contains("MiB of GPU memory"), "{}", e.message);
+        // What is left fits a smaller view, and the offer is admitted.
+        budget.admit(&used, &mono(320, 180), &LIMITS).unwrap();
+        let offer = e.message.rsplit(" is ").next().unwrap();
+        let (ow, oh) = offer.split_once('×').unwrap();
+        budget
+            .admit(
+                &used,
+                &mono(ow.parse().unwrap(), oh.parse().unwrap()),
+                &LIMITS,
+            )
+            .unwrap();
     }
 }

@@ -75,6 +75,9 @@ pub struct ServerConfig {
     /// Pixels rendered per frame over all views together (the frame-time budget in
     /// pixels); a hello or configure beyond it is refused with `over_budget`.
     pub max_pixels_per_frame: u64,
+    /// GPU memory of all views' volumes and G-buffers together, MiB (the scene, grid
+    /// and shadow maps come on top, once per view size); past it `over_budget`.
+    pub max_view_memory_mib: u64,
     /// Fault injection for tests: views of this width fail in the render loop.
     #[doc(hidden)]
     #[serde(skip)]
@@ -140,6 +143,8 @@ impl Default for ServerConfig {
             frame_timeout_s: 30.0,
             // Four 1920×1080 views.
             max_pixels_per_frame: 4 * 1920 * 1080,
+            // Four 1920×1080 views hold 544 MiB.
+            max_view_memory_mib: 1024,
             fault: None,
         }
     }
@@ -248,6 +253,11 @@ impl ServerConfig {
             (4096..=64 << 20).contains(&self.send_buffer_bytes),
             "send_buffer_bytes {}: must be 4096..=67108864",
             self.send_buffer_bytes
+        );
+        anyhow::ensure!(
+            (1..=1 << 20).contains(&self.max_view_memory_mib),
+            "max_view_memory_mib {}: must be 1..=1048576",
+            self.max_view_memory_mib
         );
         anyhow::ensure!(
             self.max_pixels_per_frame >= 16 * 16,

@@ -93,6 +93,7 @@ impl Server {
             settings,
             max_binding_bytes: ctx.max_storage_binding,
             max_pixels_per_frame: config.max_pixels_per_frame,
+            max_view_memory_bytes: config.max_view_memory_mib << 20,
         };
         let hub = Arc::new(Hub::new(config, scene, budget));
         let lost_hub = Arc::downgrade(&hub);
