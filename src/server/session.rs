@@ -156,17 +156,7 @@ fn close_reason(e: &ProtocolError) -> Utf8Bytes {
 /// Sends a fatal error and a close frame, then waits briefly for the client's close
 /// reply so the close frame is not lost to a TCP reset.
 async fn close_with(sink: &mut Sink, stream: &mut Stream, hub: &Hub, e: ProtocolError) {
-    hub.telemetry.client_error(e.code, true);
-    let frame = CloseFrame {
-        code: e.code.close_code(),
-        reason: close_reason(&e),
-    };
-    let send = async {
-        sink.send(Message::Text(error_json(&e, true).into()))
-            .await?;
-        sink.send(Message::Close(Some(frame))).await
-    };
-    if tokio::time::timeout(CLOSE_GRACE, send).await.is_ok() {
+    if send_close(sink, hub, e).await {
         let _ = tokio::time::timeout(CLOSE_GRACE, async {
             while let Some(Ok(_)) = stream.next().await {}
         })
@@ -174,8 +164,9 @@ async fn close_with(sink: &mut Sink, stream: &mut Stream, hub: &Hub, e: Protocol
     }
 }
 
-/// Sends a fatal error and a close frame (bounded by [`CLOSE_GRACE`]).
-async fn send_close(sink: &mut Sink, hub: &Hub, e: ProtocolError) {
+/// Sends a fatal error and a close frame (bounded by [`CLOSE_GRACE`]); whether both
+/// went out in time.
+async fn send_close(sink: &mut Sink, hub: &Hub, e: ProtocolError) -> bool {
     hub.telemetry.client_error(e.code, true);
     let frame = CloseFrame {
         code: e.code.close_code(),
@@ -186,7 +177,7 @@ async fn send_close(sink: &mut Sink, hub: &Hub, e: ProtocolError) {
             .await?;
         sink.send(Message::Close(Some(frame))).await
     };
-    let _ = tokio::time::timeout(CLOSE_GRACE, send).await;
+    matches!(tokio::time::timeout(CLOSE_GRACE, send).await, Ok(Ok(())))
 }
 
 /// Runs a session to its end. `shutdown` turns true when the server stops.
