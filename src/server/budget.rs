@@ -143,13 +143,7 @@ impl Budget {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::server::protocol::Layout;
-
-    const LIMITS: SpecLimits = SpecLimits {
-        max_width: 1920,
-        max_height: 1080,
-        default_quality: 75,
-    };
+    use crate::server::protocol::{Layout, TEST_LIMITS as LIMITS};
 
     fn mono(w: u32, h: u32) -> SessionSpec {
         SessionSpec::validate(w, h, Layout::Mono, None, None, None, &LIMITS).unwrap()

@@ -759,15 +759,19 @@ impl FrameHeader {
     }
 }
 
+/// The server's default spec limits, for the protocol's and the budget's unit tests.
+#[cfg(test)]
+pub(crate) const TEST_LIMITS: SpecLimits = SpecLimits {
+    max_width: 1920,
+    max_height: 1080,
+    default_quality: 75,
+};
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    const LIMITS: SpecLimits = SpecLimits {
-        max_width: 1920,
-        max_height: 1080,
-        default_quality: 75,
-    };
+    const LIMITS: SpecLimits = TEST_LIMITS;
 
     #[test]
     fn header_round_trips() {
