@@ -43,7 +43,6 @@ const FLAG_PARITY: u32 = 1u;     // update only voxels whose z parity matches th
 const FLAG_TRILINEAR: u32 = 2u;  // 8-voxel trilinear grid lookup (000 §3.1.3)
 const FLAG_SHARED: u32 = 4u;     // mode `shared` (else `reference`: a ray per froxel)
 const FLAG_MEDIA: u32 = 8u;      // the scene has participating media
-const FLAG_HISTORY: u32 = 16u;   // temporal reprojection has a valid history
 const FLAG_DEMAND: u32 = 32u;    // grid: trace only voxels that froxels requested
 const FLAG_CACHE: u32 = 64u;     // grid: keep voxels' light bits until a light changes
 const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (sparse)
@@ -70,7 +69,13 @@ struct View {
     frustum_base: u32,
     pixel_base: u32,
     jitter: f32,
+    row_stride: u32,    // pixels per row of the frame this view's tile is written into
+    history_base: u32,  // this viewer's froxels in last frame's volume; NO_HISTORY: none
+    _pad0: u32,
+    _pad1: u32,
 }
+
+const NO_HISTORY: u32 = 0xffffffffu;
 
 struct Light {
     position: vec3f,

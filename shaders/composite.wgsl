@@ -121,7 +121,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(workgroup_id) wg: ve
             for (var k = 0u; k < STRIP; k++) {
                 let x = (wg.x * STRIP + k) * 8u + lid.x;
                 if x < v.size.x {
-                    output[v.pixel_base + x + gid.y * v.size.x] = shade_pixel(v, i32(gid.z), vec2u(x, gid.y), &rays);
+                    output[v.pixel_base + x + gid.y * v.row_stride] = shade_pixel(v, i32(gid.z), vec2u(x, gid.y), &rays);
                 }
             }
         }

@@ -111,7 +111,7 @@ fn blend_history(v: View, p: vec3f, out: vec4f) -> vec4f {
     let px = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5) * vec2f(v.size) / f32(v.froxel_px);
     let s = depth_to_slice(v, prev.w);
     if all(px >= vec2f(0.0)) && all(px < vec2f(v.froxel_dims)) && s >= 0.0 && s < f32(frame.slices) {
-        let hi = v.froxel_base + u32(px.x) + v.froxel_dims.x * (u32(px.y) + v.froxel_dims.y * u32(s));
+        let hi = v.history_base + u32(px.x) + v.froxel_dims.x * (u32(px.y) + v.froxel_dims.y * u32(s));
         let h = unpack_rgba16(history[hi]);
         if all(abs(h) < vec4f(6.0e4)) {
             return mix(out, h, 0.9);
@@ -143,7 +143,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
                     out = light_froxel(v, gid.xy, slice, p, dir, &rays);
                     lit += select(0u, 1u, out.w > 0.0 || any(out.rgb > vec3f(0.0)));
                 }
-                if (frame.flags & FLAG_HISTORY) != 0u {
+                if v.history_base != NO_HISTORY {
                     out = blend_history(v, p, out);
                 }
                 froxels[v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * slice)] = pack_rgba16(out);

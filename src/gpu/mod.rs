@@ -20,6 +20,8 @@ pub struct GpuContext {
     pub timestamp_period_ns: f32,
     /// Largest storage buffer binding, bytes.
     pub max_storage_binding: u64,
+    /// Command buffers submitted through [`GpuContext::submit`] (a frame is one).
+    submissions: std::sync::atomic::AtomicU64,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -103,6 +105,7 @@ impl GpuContext {
             has_timestamps,
             has_subgroups,
             max_storage_binding: adapter_limits.max_storage_buffer_binding_size as u64,
+            submissions: Default::default(),
         })
     }
 
@@ -233,6 +236,18 @@ impl GpuContext {
         })
     }
 
+    /// Submits `enc`'s commands to the queue (every submission of fogcast goes here).
+    pub fn submit(&self, enc: wgpu::CommandEncoder) {
+        self.submissions
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.queue.submit([enc.finish()]);
+    }
+
+    /// Queue submissions made so far through [`GpuContext::submit`].
+    pub fn submissions(&self) -> u64 {
+        self.submissions.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     /// Copies `buffer` to the host (blocking).
     pub fn read_buffer(&self, buffer: &wgpu::Buffer) -> anyhow::Result<Vec<u8>> {
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -243,7 +258,7 @@ impl GpuContext {
         });
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, buffer.size());
-        self.queue.submit([enc.finish()]);
+        self.submit(enc);
         map_read(&self.device, &staging)
     }
 }

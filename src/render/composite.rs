@@ -1,6 +1,6 @@
 //! Composite + tone map, all viewers in one dispatch, with `shaders/composite.wgsl`.
 
-use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerSet};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the composite stage.
@@ -21,9 +21,6 @@ pub(crate) fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
         count: None,
     }
 }
-
-/// Pixels per invocation (`STRIP` in `shaders/composite.wgsl`).
-const STRIP: u32 = 4;
 
 impl Composite {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
@@ -52,23 +49,15 @@ impl Composite {
         }
     }
 
-    pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
-        [
-            volumes.layout.width.div_ceil(8 * STRIP),
-            volumes.layout.height.div_ceil(8),
-            volumes.count as u32,
-        ]
-    }
-
     pub(crate) fn add_pass(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
-        scene: &wgpu::BindGroup,
-        volumes: &ViewerVolumes,
+        set: &ViewerSet,
         maps: &ShadowMaps,
         ts: &Timestamps,
     ) {
+        let volumes = &set.vol;
         let array_view = |t: &wgpu::Texture| {
             t.create_view(&wgpu::TextureViewDescriptor {
                 dimension: Some(wgpu::TextureViewDimension::D2Array),
@@ -105,11 +94,11 @@ impl Composite {
         let bg = maps.stage_bind_group(ctx, "composite", &self.layout, entries);
         dispatch(
             enc,
-            "composite",
-            ts.writes(Stage::Composite),
+            ts,
+            Stage::Composite,
             &self.pipeline,
-            [scene, &bg],
-            Self::workgroups(volumes),
+            &[&set.bind_group, &bg],
+            volumes.groups.pixels,
         );
     }
 }

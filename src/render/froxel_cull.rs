@@ -4,7 +4,7 @@
 //! it decides.
 
 use super::composite::texture_entry;
-use super::{dispatch, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, Stage, Timestamps, ViewerSet};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipelines of the two culling passes.
@@ -41,15 +41,15 @@ impl FroxelCull {
         }
     }
 
-    /// Records both passes; they open the `grid_requests` stage's timing span.
+    /// Records both passes (timed as part of `grid_requests`).
     pub(crate) fn add_passes(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
-        scene: &wgpu::BindGroup,
-        volumes: &ViewerVolumes,
+        set: &ViewerSet,
         ts: &Timestamps,
     ) {
+        let volumes = &set.vol;
         let position = volumes
             .gbuf_position
             .create_view(&wgpu::TextureViewDescriptor {
@@ -74,15 +74,14 @@ impl FroxelCull {
                 },
             ],
         });
-        let [x, y] = volumes.layout.froxel_dims;
-        for (i, pipeline) in [&self.tile_max, &self.column_limit].into_iter().enumerate() {
+        for pipeline in [&self.tile_max, &self.column_limit] {
             dispatch(
                 enc,
-                "froxel_cull",
-                ts.span_writes(Stage::GridRequests, i == 0, false),
+                ts,
+                Stage::GridRequests,
                 pipeline,
-                [scene, &bg],
-                [x.div_ceil(8), y.div_ceil(8), volumes.count as u32],
+                &[&set.bind_group, &bg],
+                volumes.groups.columns,
             );
         }
     }

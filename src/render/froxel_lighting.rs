@@ -1,7 +1,7 @@
 //! Stage 3 (paper 000 §3.1.3): in-scattering and extinction per froxel, all viewers in
 //! one dispatch, with `shaders/froxel_lighting.wgsl`.
 
-use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerSet};
 use crate::gpu::GpuContext;
 
 /// Pipeline of the froxel lighting stage.
@@ -27,21 +27,16 @@ impl FroxelLighting {
         }
     }
 
-    pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
-        let [x, y] = volumes.layout.froxel_dims;
-        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
-    }
-
     /// `grid` is `None` in `reference` mode, where every froxel traces its own rays.
     pub(crate) fn add_pass(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
-        scene: &wgpu::BindGroup,
+        set: &ViewerSet,
         grid: Option<&SharedShadowGrid>,
-        volumes: &ViewerVolumes,
         ts: &Timestamps,
     ) {
+        let volumes = &set.vol;
         // In reference mode the grid binding is unused; the frustum buffer stands in.
         let grid_buffer = grid.map_or(&volumes.frustum, |g| &g.grid);
         let bricks = grid.map_or(&volumes.frustum, |g| &g.brick_table);
@@ -52,18 +47,18 @@ impl FroxelLighting {
                 grid_buffer,
                 &volumes.frustum,
                 &volumes.froxels,
-                &volumes.froxel_history,
+                set.froxel_history(),
                 bricks,
                 &volumes.column_limit,
             ],
         );
         dispatch(
             enc,
-            "froxel_lighting",
-            ts.writes(Stage::FroxelLighting),
+            ts,
+            Stage::FroxelLighting,
             &self.pipeline,
-            [scene, &bg],
-            Self::workgroups(volumes),
+            &[&set.bind_group, &bg],
+            volumes.groups.columns,
         );
     }
 }

@@ -1,6 +1,6 @@
 //! G-buffer raster (one render pass per viewer, one submission), with `shaders/gbuffer.wgsl`.
 
-use super::{scene_gpu::SceneGpu, Stage, Timestamps, ViewerVolumes};
+use super::{scene_gpu::SceneGpu, Stage, Timestamps, ViewerSet};
 use crate::gpu::GpuContext;
 use crate::scene::Camera;
 use glam::{Mat4, Vec3};
@@ -193,16 +193,9 @@ impl GBuffer {
         })
     }
 
-    /// Records one render pass per viewer into its layer of the G-buffer arrays.
-    pub(crate) fn add_passes(
-        &mut self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        scene: &SceneGpu,
-        volumes: &ViewerVolumes,
-        views: &[RasterView],
-        ts: &Timestamps,
-    ) {
+    /// Writes every viewer's raster view of this frame, all sets one after another
+    /// (before any set's passes are recorded).
+    pub(crate) fn upload(&mut self, ctx: &GpuContext, views: &[RasterView]) {
         if views.len() > self.capacity {
             self.capacity = views.len().next_power_of_two();
             self.uniforms = Self::uniform_buffer(ctx, self.capacity);
@@ -214,6 +207,21 @@ impl GBuffer {
                 .copy_from_slice(bytemuck::bytes_of(rv));
         }
         ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
+    }
+
+    /// Records one render pass per viewer of `set` into its layer of the G-buffer
+    /// arrays; the set's raster views start at `first` in the uploaded list.
+    pub(crate) fn add_passes(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &SceneGpu,
+        set: &ViewerSet,
+        first: usize,
+        ts: &Timestamps,
+    ) {
+        let volumes = &set.vol;
+        let views = &set.raster_views;
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("gbuffer"),
             layout: &self.layout,
@@ -257,7 +265,7 @@ impl GBuffer {
                     })
                 })
                 .collect();
-            let timestamp_writes = ts.render_writes(Stage::GBuffer, i == 0, i + 1 == n);
+            let timestamp_writes = ts.render(Stage::GBuffer);
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("gbuffer"),
                 color_attachments: &attachments,
@@ -277,7 +285,7 @@ impl GBuffer {
                 continue;
             }
             pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bg, &[i * VIEW_STRIDE as u32]);
+            pass.set_bind_group(0, &bg, &[(first as u32 + i) * VIEW_STRIDE as u32]);
             pass.set_vertex_buffer(0, scene.vertices.slice(..));
             pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
             for range in visible_ranges(scene, &views[i as usize]) {

@@ -7,7 +7,6 @@ pub(crate) const FLAG_PARITY: u32 = 1;
 pub(crate) const FLAG_TRILINEAR: u32 = 2;
 pub(crate) const FLAG_SHARED: u32 = 4;
 pub(crate) const FLAG_MEDIA: u32 = 8;
-pub(crate) const FLAG_HISTORY: u32 = 16;
 pub(crate) const FLAG_DEMAND: u32 = 32;
 pub(crate) const FLAG_CACHE: u32 = 64;
 pub(crate) const FLAG_SPARSE: u32 = 128;
@@ -77,7 +76,15 @@ pub(crate) struct ViewGpu {
     pub frustum_base: u32,
     pub pixel_base: u32,
     pub jitter: f32,
+    /// Pixels per row of the frame this view's tile is written into.
+    pub row_stride: u32,
+    /// Where this viewer's froxels start in last frame's froxels ([`NO_HISTORY`]: none).
+    pub history_base: u32,
+    pub _pad: [u32; 2],
 }
+
+/// `ViewGpu::history_base` of a viewer without last frame's froxels.
+pub(crate) const NO_HISTORY: u32 = u32::MAX;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -163,7 +170,7 @@ impl From<&Medium> for MediumGpu {
 }
 
 const _: () = assert!(std::mem::size_of::<FrameGpu>() == 144);
-const _: () = assert!(std::mem::size_of::<ViewGpu>() == 240);
+const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 96);
 const _: () = assert!(std::mem::size_of::<LightMediaGpu>() == 48);

@@ -20,7 +20,7 @@
 //! away still gets all its texels on the media).
 
 use super::gpu_types::LightMediaGpu;
-use super::{compute_pass, Stage, Timestamps};
+use super::{dispatch, Stage, Timestamps};
 use crate::gpu::GpuContext;
 use crate::scene::Scene;
 use glam::Vec3;
@@ -176,15 +176,14 @@ impl MediaTransmittance {
         if dirty == 0 {
             return false;
         }
-        let [x, y, z] = self.workgroups();
-        let mut pass = compute_pass(
+        dispatch(
             enc,
-            "media_transmittance",
-            ts.writes(Stage::MediaTransmittance),
+            ts,
+            Stage::MediaTransmittance,
+            &self.pipeline,
+            &[scene],
+            self.workgroups(),
         );
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, scene, &[]);
-        pass.dispatch_workgroups(x, y, z);
         true
     }
 }

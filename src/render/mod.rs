@@ -1,8 +1,12 @@
-//! The froxel renderer: the four stages of paper 000 §3.1 plus G-buffer and composite.
+//! The froxel renderer: the four stages of paper 000 §3.1 plus G-buffer and composite,
+//! for every viewer of every size in one frame.
 //!
-//! [`Renderer::render`] reads top to bottom as the frame runs: upload, G-buffer,
-//! shared grid (world space, once), shadow frustums, froxel lighting, integration and
-//! composite (each one dispatch for all viewers), then one readback.
+//! A [`Renderer`] is one [`World`] (the scene and everything view-independent, updated
+//! once per frame) and a viewer set per view size. [`Renderer::render_targets`] reads top
+//! to bottom as the frame runs, one line per [`Stage`]: G-buffers, the world's shadow
+//! maps, media transmittance and shared grid (fed by every set's requests), then the
+//! per-viewer stages for each set, one submission and one readback. See
+//! docs/architecture.md.
 
 mod composite;
 mod froxel_cull;
@@ -18,22 +22,32 @@ mod settings;
 mod shadow_frustum;
 mod shadow_maps;
 mod shared_grid;
+mod stage;
 mod stats;
+mod viewer_set;
 mod viewer_volumes;
 mod volume_integration;
+mod world;
 
 pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub use settings::{Mode, Settings};
-pub use shared_grid::SharedShadowGrid;
+pub use shared_grid::{GridUpdate, SharedShadowGrid};
+pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming};
+pub use viewer_set::ViewerId;
 pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
+pub use world::{Lookup, World};
 
 use crate::gpu::{map_read, GpuContext};
 use crate::scene::{Bvh, Camera, Scene};
-use glam::Vec3;
 use gpu_types::*;
+use shared_grid::RequestPhase;
+pub(crate) use stage::{dispatch, Timestamps};
+use std::collections::btree_map::Entry;
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Instant;
+use viewer_set::ViewerSet;
 
 const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
 const BVH_WGSL: &str = include_str!("../../shaders/bvh.wgsl");
@@ -52,99 +66,106 @@ pub(crate) fn stage_shader(ctx: &GpuContext, label: &str, stage: &str) -> wgpu::
     ctx.shader(label, &[COMMON_WGSL, count, BVH_WGSL, stage])
 }
 
-/// Stages with a GPU time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Stage {
-    GBuffer = 0,
-    SharedGrid = 1,
-    ShadowFrustum = 2,
-    FroxelLighting = 3,
-    VolumeIntegration = 4,
-    Composite = 5,
-    GridRequests = 6,
-    ShadowMaps = 7,
-    MediaTransmittance = 8,
+/// One viewer of a [`FrameTarget`]: who it is, where it looks from, and where its
+/// tile lies in the target's frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TargetView {
+    /// Stable across frames: the viewer's history follows it.
+    pub id: ViewerId,
+    /// The camera.
+    pub camera: Camera,
+    /// Top-left pixel of the viewer's tile in the frame.
+    pub origin: [u32; 2],
 }
 
-const STAGES: [(Stage, &str); 9] = [
-    (Stage::GBuffer, "gbuffer"),
-    (Stage::ShadowMaps, "shadow_maps"),
-    (Stage::MediaTransmittance, "media_transmittance"),
-    (Stage::GridRequests, "grid_requests"),
-    (Stage::SharedGrid, "shared_grid"),
-    (Stage::ShadowFrustum, "shadow_frustum"),
-    (Stage::FroxelLighting, "froxel_lighting"),
-    (Stage::VolumeIntegration, "volume_integration"),
-    (Stage::Composite, "composite"),
-];
-
-/// Timestamp queries for each stage, when the adapter has them.
-pub(crate) struct Timestamps {
-    set: Option<wgpu::QuerySet>,
+/// One image a frame produces (a session's frame): its viewers, all of one view size,
+/// tiled into it. The composite writes every tile in place; pixels no tile covers are
+/// opaque black.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameTarget {
+    /// Frame size, pixels.
+    pub width: u32,
+    /// Frame size, pixels.
+    pub height: u32,
+    /// Size of every viewer's tile.
+    pub view_width: u32,
+    /// Size of every viewer's tile.
+    pub view_height: u32,
+    /// The viewers.
+    pub views: Vec<TargetView>,
 }
 
-impl Timestamps {
-    fn writes(&self, stage: Stage) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
-        self.span_writes(stage, true, true)
+impl FrameTarget {
+    /// A frame of one viewer.
+    pub fn single(id: ViewerId, camera: Camera, width: u32, height: u32) -> FrameTarget {
+        FrameTarget {
+            width,
+            height,
+            view_width: width,
+            view_height: height,
+            views: vec![TargetView {
+                id,
+                camera,
+                origin: [0, 0],
+            }],
+        }
     }
 
-    /// Timestamps for one of several passes of a stage: its start on the first, its end
-    /// on the last.
-    fn span_writes(
-        &self,
-        stage: Stage,
-        first: bool,
-        last: bool,
-    ) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
-        let q = self.set.as_ref()?;
-        (first || last).then_some(wgpu::ComputePassTimestampWrites {
-            query_set: q,
-            beginning_of_pass_write_index: first.then_some(stage as u32 * 2),
-            end_of_pass_write_index: last.then_some(stage as u32 * 2 + 1),
-        })
+    fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
     }
 
-    fn render_writes(
-        &self,
-        stage: Stage,
-        first: bool,
-        last: bool,
-    ) -> Option<wgpu::RenderPassTimestampWrites<'_>> {
-        let q = self.set.as_ref()?;
-        (first || last).then_some(wgpu::RenderPassTimestampWrites {
-            query_set: q,
-            beginning_of_pass_write_index: first.then_some(stage as u32 * 2),
-            end_of_pass_write_index: last.then_some(stage as u32 * 2 + 1),
-        })
+    fn validate(&self) -> anyhow::Result<()> {
+        let (w, h) = (self.view_width, self.view_height);
+        anyhow::ensure!(
+            (1..=8192).contains(&w) && (1..=8192).contains(&h),
+            "viewer size {w}×{h}: must be 1..=8192 on each side"
+        );
+        anyhow::ensure!(!self.views.is_empty(), "a frame needs at least one viewer");
+        for v in &self.views {
+            let c = &v.camera;
+            anyhow::ensure!(
+                c.position.is_finite()
+                    && c.forward.is_finite()
+                    && c.fov_y.is_finite()
+                    && c.fov_y > 0.0
+                    && c.fov_y < 3.1,
+                "viewer {}: camera {c:?} is not finite or its field of view is out of range",
+                v.id
+            );
+            anyhow::ensure!(
+                v.origin[0] as u64 + w as u64 <= self.width as u64
+                    && v.origin[1] as u64 + h as u64 <= self.height as u64,
+                "viewer {}: its {w}×{h} tile at {:?} is outside the {}×{} frame",
+                v.id,
+                v.origin,
+                self.width,
+                self.height
+            );
+        }
+        Ok(())
     }
-}
 
-/// Records one compute pass of a stage: `pipeline` with the scene's bind group (0) and
-/// the stage's own (1), over `workgroups`.
-pub(crate) fn dispatch(
-    enc: &mut wgpu::CommandEncoder,
-    label: &str,
-    ts: Option<wgpu::ComputePassTimestampWrites<'_>>,
-    pipeline: &wgpu::ComputePipeline,
-    [scene, stage]: [&wgpu::BindGroup; 2],
-    [x, y, z]: [u32; 3],
-) {
-    let mut pass = compute_pass(enc, label, ts);
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, scene, &[]);
-    pass.set_bind_group(1, stage, &[]);
-    pass.dispatch_workgroups(x, y, z);
-}
-
-pub(crate) fn compute_pass<'e>(
-    enc: &'e mut wgpu::CommandEncoder,
-    label: &str,
-    ts: Option<wgpu::ComputePassTimestampWrites<'_>>,
-) -> wgpu::ComputePass<'e> {
-    enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-        label: Some(label),
-        timestamp_writes: ts,
-    })
+    /// Paints the pixels no tile covers opaque black.
+    fn fill_uncovered(&self, image: &mut [u8]) {
+        if self.views.len() as u64 * self.view_width as u64 * self.view_height as u64
+            == self.pixels()
+        {
+            return;
+        }
+        let covered = |x: u32, y: u32| {
+            self.views.iter().any(|v| {
+                (v.origin[0]..v.origin[0] + self.view_width).contains(&x)
+                    && (v.origin[1]..v.origin[1] + self.view_height).contains(&y)
+            })
+        };
+        for (i, px) in image.chunks_exact_mut(4).enumerate() {
+            let (x, y) = (i as u32 % self.width, i as u32 / self.width);
+            if !covered(x, y) {
+                px.copy_from_slice(&[0, 0, 0, 255]);
+            }
+        }
+    }
 }
 
 /// One rendered frame: an RGBA8 image per viewer and the frame's counters.
@@ -160,31 +181,32 @@ pub struct FrameOutput {
     pub stats: FrameStats,
 }
 
-/// Renders a scene for many viewers at once.
-pub struct Renderer {
-    ctx: Arc<GpuContext>,
-    scene: Arc<Scene>,
-    settings: Settings,
-    scene_gpu: scene_gpu::SceneGpu,
-    grid: Option<SharedShadowGrid>,
-    volumes: Option<ViewerVolumes>,
+/// One rendered frame of [`Renderer::render_targets`]: an RGBA8 image per target.
+#[derive(Debug, Clone)]
+pub struct TargetsOutput {
+    /// One tightly packed RGBA8 frame per target, in the order given.
+    pub images: Vec<Vec<u8>>,
+    /// Counters, memory and timings of the whole frame.
+    pub stats: FrameStats,
+}
+
+/// The per-viewer stages' pipelines, shared by every viewer set.
+struct ViewerStages {
     gbuffer: gbuffer::GBuffer,
-    frustum: shadow_frustum::ShadowFrustum,
     cull: froxel_cull::FroxelCull,
-    shadow_maps: shadow_maps::ShadowMaps,
-    transmittance: media_transmittance::MediaTransmittance,
+    frustum: shadow_frustum::ShadowFrustum,
     lighting: froxel_lighting::FroxelLighting,
     integration: volume_integration::VolumeIntegration,
     composite: composite::Composite,
+}
+
+/// Renders a scene for many viewers of any sizes at once: one [`World`] and a
+/// [`viewer_set::ViewerSet`] per view size, one submission and one readback per frame.
+pub struct Renderer {
+    world: World,
+    stages: ViewerStages,
+    sets: BTreeMap<(u32, u32), ViewerSet>,
     timestamps: Timestamps,
-    ts_resolve: Option<wgpu::Buffer>,
-    frame_index: u32,
-    prev_view_proj: Vec<glam::Mat4>,
-    /// The lights as last uploaded (animated lights move; a change marks the light dirty).
-    lights_uploaded: Option<Vec<LightGpu>>,
-    /// Scene time of the movers as last uploaded.
-    movers_time: Option<f32>,
-    triangles: usize,
 }
 
 impl Renderer {
@@ -213,113 +235,65 @@ impl Renderer {
         bvh: &Bvh,
         settings: Settings,
     ) -> anyhow::Result<Renderer> {
-        settings.validate()?;
-        let light_media = media_transmittance::plan(
-            &scene,
-            if settings.mode == Mode::Shared {
-                settings.transmittance_voxel_m
-            } else {
-                0.0
-            },
-        );
-        let scene_gpu = scene_gpu::SceneGpu::new(&ctx, &scene, bvh, &light_media)?;
-        let grid = match (settings.mode, scene.media_bounds()) {
-            (Mode::Shared, Some(bounds)) if !scene.lights.is_empty() => {
-                Some(SharedShadowGrid::new(
-                    &ctx,
-                    &scene_gpu.layout,
-                    bounds,
-                    settings.voxel_size_m,
-                    shared_grid::UpdatePolicy {
-                        demand: settings.demand || settings.brick_pool > 0,
-                        cache: settings.cache && settings.brick_pool == 0,
-                        brick_pool: settings.brick_pool,
-                    },
-                )?)
-            }
-            _ => None,
-        };
-        let set = ctx.has_timestamps.then(|| {
-            ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("stage timestamps"),
-                ty: wgpu::QueryType::Timestamp,
-                count: STAGES.len() as u32 * 2,
-            })
-        });
-        let ts_resolve = set.as_ref().map(|_| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("timestamp resolve"),
-                size: STAGES.len() as u64 * 16,
-                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            })
-        });
+        let world = World::new(ctx.clone(), scene, bvh, settings)?;
+        let layout = &world.gpu.layout;
         Ok(Renderer {
-            gbuffer: gbuffer::GBuffer::new(&ctx),
-            frustum: shadow_frustum::ShadowFrustum::new(&ctx, &scene_gpu.layout),
-            cull: froxel_cull::FroxelCull::new(&ctx, &scene_gpu.layout),
-            shadow_maps: shadow_maps::ShadowMaps::new(
-                &ctx,
-                &scene,
-                if settings.mode == Mode::Shared {
-                    settings.shadow_map_px
-                } else {
-                    0
-                },
-            ),
-            transmittance: media_transmittance::MediaTransmittance::new(
-                &ctx,
-                &scene_gpu.layout,
-                &scene,
-                &light_media,
-            ),
-            lighting: froxel_lighting::FroxelLighting::new(&ctx, &scene_gpu.layout),
-            integration: volume_integration::VolumeIntegration::new(&ctx, &scene_gpu.layout),
-            composite: composite::Composite::new(&ctx, &scene_gpu.layout),
-            triangles: bvh.triangle_count()
-                + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
-            scene_gpu,
-            grid,
-            volumes: None,
-            timestamps: Timestamps { set },
-            ts_resolve,
-            frame_index: 0,
-            prev_view_proj: Vec::new(),
-            lights_uploaded: None,
-            movers_time: None,
-            ctx,
-            scene,
-            settings,
+            stages: ViewerStages {
+                gbuffer: gbuffer::GBuffer::new(&ctx),
+                cull: froxel_cull::FroxelCull::new(&ctx, layout),
+                frustum: shadow_frustum::ShadowFrustum::new(&ctx, layout),
+                lighting: froxel_lighting::FroxelLighting::new(&ctx, layout),
+                integration: volume_integration::VolumeIntegration::new(&ctx, layout),
+                composite: composite::Composite::new(&ctx, layout),
+            },
+            timestamps: Timestamps::new(&ctx),
+            sets: BTreeMap::new(),
+            world,
         })
     }
 
     /// The settings in force.
     pub fn settings(&self) -> &Settings {
-        &self.settings
+        &self.world.settings
+    }
+
+    /// The world: the scene and the structures every viewer shares.
+    pub fn world(&self) -> &World {
+        &self.world
     }
 
     /// The shared grid (mode `shared` with media and lights only).
     pub fn shared_grid(&self) -> Option<&SharedShadowGrid> {
-        self.grid.as_ref()
+        self.world.grid.as_ref()
+    }
+
+    /// View sizes with viewer volumes allocated (those of the last frame).
+    pub fn view_sizes(&self) -> Vec<(u32, u32)> {
+        self.sets.keys().copied().collect()
     }
 
     /// Reads the shared grid's words and touched nibbles back (for tests and tools).
     pub fn read_shared_grid(&self) -> anyhow::Result<Option<(Vec<u32>, Vec<u32>)>> {
-        let Some(g) = &self.grid else { return Ok(None) };
-        let words = bytemuck::cast_slice(&self.ctx.read_buffer(&g.grid)?).to_vec();
-        let touched = bytemuck::cast_slice(&self.ctx.read_buffer(&g.touched)?).to_vec();
+        let Some(g) = &self.world.grid else {
+            return Ok(None);
+        };
+        let ctx = &self.world.ctx;
+        let words = bytemuck::cast_slice(&ctx.read_buffer(&g.grid)?).to_vec();
+        let touched = bytemuck::cast_slice(&ctx.read_buffer(&g.touched)?).to_vec();
         Ok(Some((words, touched)))
     }
 
-    /// Reads every viewer's integrated froxel volume back as f32 `[r, g, b, transmittance]`
-    /// (for tests and tools: NaN or inf here is hidden by the RGBA8 clamp of the image).
-    /// Viewer `i`'s froxel `(x, y, slice)` is at `i·X·Y·slices + x + X·(y + Y·slice)` for
-    /// an `X × Y` froxel grid; empty before the first frame.
+    /// Reads the integrated froxel volume of the last frame's first view size back as f32
+    /// `[r, g, b, transmittance]` (for tests and tools: NaN or inf here is hidden by the
+    /// RGBA8 clamp of the image). Viewer `i`'s froxel `(x, y, slice)` is at
+    /// `i·X·Y·slices + x + X·(y + Y·slice)` for an `X × Y` froxel grid; empty before the
+    /// first frame.
     pub fn read_integrated_volume(&self) -> anyhow::Result<Vec<[f32; 4]>> {
-        let Some(v) = &self.volumes else {
+        let Some(set) = self.sets.values().next() else {
             return Ok(Vec::new());
         };
-        let bytes = self.ctx.read_buffer(&v.integrated)?;
+        let v = &set.vol;
+        let bytes = self.world.ctx.read_buffer(&v.integrated)?;
         let froxels = v.count * v.froxels_per_view() as usize;
         // `pack_rgba16` in common.wgsl: two u32 words, each the low half first.
         Ok(bytes
@@ -329,183 +303,8 @@ impl Renderer {
             .collect())
     }
 
-    fn ensure_volumes(&mut self, count: usize, width: u32, height: u32) -> anyhow::Result<()> {
-        let s = &self.settings;
-        let layout = ViewerLayout::new(s, width, height);
-        let fits = self
-            .volumes
-            .as_ref()
-            .is_some_and(|v| v.count == count && v.layout == layout);
-        if !fits {
-            self.volumes = Some(ViewerVolumes::new(
-                &self.ctx,
-                count,
-                layout,
-                s.slices,
-                s.frustum_slices(),
-                s.temporal,
-            )?);
-            self.prev_view_proj.clear();
-        }
-        Ok(())
-    }
-
-    /// Writes the frame's uniforms; returns the flags, whether the scene has media, and
-    /// the lights whose media transmittance is refilled this frame.
-    fn upload(&mut self, cameras: &[Camera], time_s: f32) -> anyhow::Result<(u32, bool, u32)> {
-        let scene = &self.scene;
-        let s = &self.settings;
-        let vol = self
-            .volumes
-            .as_ref()
-            .expect("volumes allocated before upload");
-        let (near, far) = (scene.render.near_m, scene.render.far_m);
-        let has_media = !scene.media.is_empty();
-        let history = s.temporal && vol.has_history && self.prev_view_proj.len() == cameras.len();
-        // Per-frame jitter along the view ray (a 1D low-discrepancy sequence), centred.
-        let jitter = if s.temporal {
-            ((self.frame_index as f32 * 0.618_034).fract() - 0.5) * 0.999
-        } else {
-            0.0
-        };
-        let aspect = vol.layout.width as f32 / vol.layout.height as f32;
-        let mut views = Vec::with_capacity(cameras.len());
-        let mut view_projs = Vec::with_capacity(cameras.len());
-        for (i, c) in cameras.iter().enumerate() {
-            let vp = c.projection(aspect, near, far) * c.view();
-            let right = c.forward.cross(c.up()).normalize();
-            let up = right.cross(c.forward);
-            let tan_y = (c.fov_y * 0.5).tan();
-            let prev = if history { self.prev_view_proj[i] } else { vp };
-            views.push(ViewGpu {
-                view_proj: vp.to_cols_array_2d(),
-                prev_view_proj: prev.to_cols_array_2d(),
-                position: c.position.to_array(),
-                near,
-                forward: c.forward.to_array(),
-                far,
-                right: right.to_array(),
-                tan_x: tan_y * aspect,
-                up: up.to_array(),
-                tan_y,
-                size: [vol.layout.width, vol.layout.height],
-                froxel_dims: vol.layout.froxel_dims,
-                frustum_dims: vol.layout.frustum_dims,
-                froxel_px: s.froxel_px,
-                frustum_px: s.frustum_px,
-                froxel_base: i as u32 * vol.froxels_per_view(),
-                frustum_base: i as u32 * vol.frustum_per_view(),
-                pixel_base: i as u32 * vol.layout.width * vol.layout.height,
-                jitter,
-            });
-            view_projs.push(vp);
-        }
-        self.prev_view_proj = view_projs;
-        let mut flags = 0;
-        if s.parity {
-            flags |= FLAG_PARITY;
-        }
-        if s.trilinear {
-            flags |= FLAG_TRILINEAR;
-        }
-        if s.mode == Mode::Shared {
-            flags |= FLAG_SHARED;
-        }
-        if has_media {
-            flags |= FLAG_MEDIA;
-        }
-        if history {
-            flags |= FLAG_HISTORY;
-        }
-        if s.demand || s.brick_pool > 0 {
-            flags |= FLAG_DEMAND;
-        }
-        if s.brick_pool > 0 {
-            flags |= FLAG_SPARSE;
-        }
-        if s.cache && s.brick_pool == 0 {
-            flags |= FLAG_CACHE;
-        }
-        if self.transmittance.in_use() {
-            flags |= FLAG_MEDIA_T;
-        }
-        // Only where the culling passes run: a grid exists (media and lights).
-        if s.culls_hidden_froxels() && self.grid.is_some() && !scene.lights.is_empty() {
-            flags |= FLAG_CULL;
-        }
-        // Animated lights: upload the lights at this time, marking the ones that changed.
-        let lights: Vec<LightGpu> = scene.lights_at(time_s).iter().map(LightGpu::from).collect();
-        let dirty_lights = match &self.lights_uploaded {
-            Some(prev) => lights
-                .iter()
-                .zip(prev)
-                .enumerate()
-                .filter(|(_, (a, b))| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
-                .fold(0u32, |m, (i, _)| m | (1 << i)),
-            None => (1u32 << lights.len()) - 1,
-        };
-        if dirty_lights != 0 {
-            self.scene_gpu.write_lights(&self.ctx, &lights);
-        }
-        self.lights_uploaded = Some(lights);
-        let transmittance_dirty = self.transmittance.dirty(dirty_lights);
-        // Movers: their tree and vertices at this time, and the bounds they swept since
-        // the last frame (what cached grid bits must be re-checked against).
-        let mover_root = self.scene_gpu.write_movers(&self.ctx, scene, time_s)?;
-        let mut moved = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        if let Some(prev) = self.movers_time.filter(|p| *p != time_s) {
-            for m in &scene.movers {
-                for (lo, hi) in [m.bounds_at(prev), m.bounds_at(time_s)] {
-                    moved = (moved.0.min(lo), moved.1.max(hi));
-                }
-            }
-        }
-        self.movers_time = Some(time_s);
-        let s = &self.settings;
-        let (lo, hi) = scene.bounds;
-        let g = self.grid.as_ref();
-        let frame = FrameGpu {
-            grid_min: g.map_or([0.0; 3], |g| g.min.to_array()),
-            voxel_size: g.map_or(1.0, |g| g.voxel_size_m),
-            grid_dims: g.map_or([1; 3], |g| g.dims.to_array()),
-            light_count: scene.lights.len() as u32,
-            sky: scene.render.sky,
-            medium_count: scene.media.len() as u32,
-            ambient: scene.render.ambient,
-            exposure: scene.render.exposure,
-            view_count: cameras.len() as u32,
-            frame_index: self.frame_index,
-            flags,
-            time_s,
-            grid_words_x: g.map_or(1, |g| g.words_x),
-            // A directional shadow ray never needs to be longer than the scene.
-            max_ray_m: (hi - lo).length() + 1.0,
-            frustum_slices: if s.mode == Mode::Shared {
-                s.frustum_slices()
-            } else {
-                0
-            },
-            slices: s.slices,
-            depth_curve: s.depth_curve,
-            dirty_lights,
-            pool_capacity: s.brick_pool,
-            mover_root,
-            moved_min: moved.0.to_array(),
-            transmittance_dirty,
-            moved_max: moved.1.to_array(),
-            media_step_m: s.media_step_m,
-        };
-        self.scene_gpu.ensure_views(&self.ctx, cameras.len())?;
-        self.ctx
-            .queue
-            .write_buffer(&self.scene_gpu.frame, 0, bytemuck::bytes_of(&frame));
-        self.ctx
-            .queue
-            .write_buffer(&self.scene_gpu.views, 0, bytemuck::cast_slice(&views));
-        Ok((flags, has_media, transmittance_dirty))
-    }
-
-    /// Renders one frame for every camera (all the same size) at scene time `time_s`.
+    /// Renders one frame for every camera (all the same size, each its own image, viewer
+    /// ids 0, 1, …) at scene time `time_s`.
     pub fn render(
         &mut self,
         cameras: &[Camera],
@@ -514,235 +313,242 @@ impl Renderer {
         time_s: f32,
     ) -> anyhow::Result<FrameOutput> {
         anyhow::ensure!(!cameras.is_empty(), "at least one viewer is needed");
-        anyhow::ensure!(
-            (1..=8192).contains(&width) && (1..=8192).contains(&height),
-            "viewer size {width}×{height}: must be 1..=8192 on each side"
-        );
-        anyhow::ensure!(time_s.is_finite(), "scene time {time_s} must be finite");
-        for (i, c) in cameras.iter().enumerate() {
-            anyhow::ensure!(
-                c.position.is_finite()
-                    && c.forward.is_finite()
-                    && c.fov_y.is_finite()
-                    && c.fov_y > 0.0
-                    && c.fov_y < 3.1,
-                "viewer {i}: camera {c:?} is not finite or its field of view is out of range"
-            );
-        }
-        let started = Instant::now();
-        self.ensure_volumes(cameras.len(), width, height)?;
-        let (flags, has_media, transmittance_dirty) = self.upload(cameras, time_s)?;
-        let ctx = self.ctx.clone();
-        let has_lights = !self.scene.lights.is_empty();
-        let shared = self.settings.mode == Mode::Shared;
-        let vol = self.volumes.as_ref().expect("allocated above");
-        let scene_bg = &self.scene_gpu.bind_group;
-        let mut dispatches = Vec::new();
+        let targets: Vec<FrameTarget> = cameras
+            .iter()
+            .enumerate()
+            .map(|(i, c)| FrameTarget::single(i as ViewerId, *c, width, height))
+            .collect();
+        let out = self.render_targets(&targets, time_s)?;
+        Ok(FrameOutput {
+            width,
+            height,
+            images: out.images,
+            stats: out.stats,
+        })
+    }
 
+    /// Renders one frame of every target at scene time `time_s`: the world's stages
+    /// once, then each stage for every viewer set, in one submission with one readback.
+    pub fn render_targets(
+        &mut self,
+        targets: &[FrameTarget],
+        time_s: f32,
+    ) -> anyhow::Result<TargetsOutput> {
+        anyhow::ensure!(!targets.is_empty(), "at least one frame target is needed");
+        anyhow::ensure!(time_s.is_finite(), "scene time {time_s} must be finite");
+        targets.iter().try_for_each(FrameTarget::validate)?;
+        let started = Instant::now();
+        let frame = self.world.begin_frame(time_s)?;
+        self.prepare_sets(targets, frame)?;
+        let (world, stages, sets, ts) = (
+            &mut self.world,
+            &self.stages,
+            &self.sets,
+            &self.timestamps,
+        );
+        let ctx = world.ctx.clone();
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("frame"),
             });
-        enc.clear_buffer(&self.scene_gpu.counters, 0, None);
-        self.gbuffer.add_passes(
-            &ctx,
-            &mut enc,
-            &self.scene_gpu,
-            vol,
-            &gbuffer::RasterView::for_cameras(
-                cameras,
-                vol.layout.width as f32 / vol.layout.height as f32,
-                self.scene.render.near_m,
-                self.scene.render.far_m,
-            ),
-            &self.timestamps,
-        );
-        if self.shadow_maps.add_passes(
-            &ctx,
-            &mut enc,
-            &self.scene,
-            &self.scene_gpu,
-            time_s,
-            &self.timestamps,
-        ) {
-            dispatches.push(("shadow_maps", [0, 0, 0]));
+        let mut ran = vec![Stage::GBuffer];
+        enc.clear_buffer(&world.gpu.counters, 0, None);
+        // The frame, top to bottom: each line one stage, for the world or every set.
+        let mut first = 0;
+        for set in sets.values() {
+            stages.gbuffer.add_passes(&ctx, &mut enc, &world.gpu, set, first, ts);
+            first += set.vol.count;
         }
-        // Media transmittance toward the lights: world space, before any viewer reads it;
-        // skipped when no light's volume is stale.
-        if self
-            .transmittance
-            .add_pass(&mut enc, scene_bg, transmittance_dirty, &self.timestamps)
-        {
-            dispatches.push(("media_transmittance", self.transmittance.workgroups()));
-        }
-        // Passes with no work are skipped: no media means no froxel stages at all, and
-        // no lights means no shadow rays.
-        if has_media {
-            if shared && has_lights {
-                if let Some(grid) = &self.grid {
-                    let culled = flags & FLAG_CULL != 0;
-                    if culled {
-                        self.cull
-                            .add_passes(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
-                    }
-                    if (self.settings.demand || grid.is_sparse())
-                        && grid.add_request_passes(
-                            &ctx,
-                            &mut enc,
-                            scene_bg,
-                            vol,
-                            &self.timestamps,
-                            culled,
-                        )
-                    {
-                        dispatches
-                            .push(("grid_requests", SharedShadowGrid::request_workgroups(vol)));
-                    }
-                    grid.add_pass(&ctx, &mut enc, scene_bg, &self.timestamps);
-                    dispatches.push(("shared_grid", grid.workgroups()));
+        ran.extend(world.add_shadow_maps(&mut enc, time_s, ts).then_some(Stage::ShadowMaps));
+        ran.extend(world.add_transmittance(&mut enc, &frame, ts).then_some(Stage::MediaTransmittance));
+        if let Some(grid) = world.grid.as_ref().filter(|_| world.grid_in_use()) {
+            if grid.update().requests() {
+                grid.clear_requests(&mut enc);
+                if frame.flags & FLAG_CULL != 0 {
+                    sets.values().for_each(|set| stages.cull.add_passes(&ctx, &mut enc, set, ts));
                 }
-                if vol.frustum_slices > 0 {
-                    self.frustum.add_pass(
-                        &ctx,
-                        &mut enc,
-                        scene_bg,
-                        vol,
-                        &self.shadow_maps,
-                        &self.timestamps,
-                    );
-                    dispatches.push((
-                        "shadow_frustum",
-                        shadow_frustum::ShadowFrustum::workgroups(vol),
-                    ));
-                }
+                sets.values().for_each(|set| grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Mark, ts));
+                grid.add_allocation(&ctx, &mut enc, &world.gpu.bind_group, ts);
+                sets.values().for_each(|set| grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Voxels, ts));
+                ran.push(Stage::GridRequests);
             }
-            self.lighting.add_pass(
-                &ctx,
-                &mut enc,
-                scene_bg,
-                self.grid.as_ref(),
-                vol,
-                &self.timestamps,
-            );
-            dispatches.push((
-                "froxel_lighting",
-                froxel_lighting::FroxelLighting::workgroups(vol),
-            ));
-            self.integration
-                .add_pass(&ctx, &mut enc, scene_bg, vol, &self.timestamps);
-            dispatches.push((
-                "volume_integration",
-                volume_integration::VolumeIntegration::workgroups(vol),
-            ));
-            if self.settings.temporal {
-                enc.copy_buffer_to_buffer(
-                    &vol.froxels,
-                    0,
-                    &vol.froxel_history,
-                    0,
-                    vol.froxels.size(),
-                );
+            grid.add_pass(&ctx, &mut enc, &world.gpu.bind_group, ts);
+            ran.push(Stage::SharedGrid);
+            if frame.frustum_slices > 0 {
+                sets.values().for_each(|set| stages.frustum.add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts));
+                ran.push(Stage::ShadowFrustum);
             }
         }
-        self.composite.add_pass(
-            &ctx,
-            &mut enc,
-            scene_bg,
-            vol,
-            &self.shadow_maps,
-            &self.timestamps,
-        );
-        dispatches.push(("composite", composite::Composite::workgroups(vol)));
-
-        // One readback of images, counters and timestamps.
-        let staging = |size: u64, label: &str| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        };
-        let pixels_bytes = vol.count as u64 * width as u64 * height as u64 * 4;
-        let image_staging = staging(pixels_bytes, "image readback");
-        enc.copy_buffer_to_buffer(&vol.output, 0, &image_staging, 0, pixels_bytes);
-        let counter_staging = staging(self.scene_gpu.counters.size(), "counter readback");
-        enc.copy_buffer_to_buffer(
-            &self.scene_gpu.counters,
-            0,
-            &counter_staging,
-            0,
-            self.scene_gpu.counters.size(),
-        );
-        let ts_staging = match (&self.timestamps.set, &self.ts_resolve) {
-            (Some(set), Some(resolve)) => {
-                enc.resolve_query_set(set, 0..STAGES.len() as u32 * 2, resolve, 0);
-                let s = staging(resolve.size(), "timestamp readback");
-                enc.copy_buffer_to_buffer(resolve, 0, &s, 0, resolve.size());
-                Some(s)
-            }
-            _ => None,
-        };
-        ctx.queue.submit([enc.finish()]);
-        let pixels = map_read(&ctx.device, &image_staging)?;
-        let counters: Vec<u32> =
-            bytemuck::cast_slice(&map_read(&ctx.device, &counter_staging)?).to_vec();
-        let ticks: Option<Vec<u64>> = match ts_staging {
-            Some(s) => Some(bytemuck::cast_slice(&map_read(&ctx.device, &s)?).to_vec()),
-            None => None,
-        };
+        if world.has_media() {
+            sets.values().for_each(|set| stages.lighting.add_pass(&ctx, &mut enc, set, world.grid.as_ref(), ts));
+            sets.values().for_each(|set| stages.integration.add_pass(&ctx, &mut enc, set, ts));
+            ran.extend([Stage::FroxelLighting, Stage::VolumeIntegration]);
+        }
+        sets.values().for_each(|set| stages.composite.add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts));
+        ran.push(Stage::Composite);
+        let readback = Readback::record(&ctx, &mut enc, world, sets, ts);
+        ctx.submit(enc);
+        let bytes = readback.map(&ctx)?;
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
-        if let Some(v) = self.volumes.as_mut() {
-            v.has_history = self.settings.temporal && has_media;
-        }
-        let vol = self.volumes.as_ref().expect("allocated above");
+        self.finish_frame(targets, bytes, &ran, frame_ms)
+    }
 
-        let ran: Vec<&str> = std::iter::once("gbuffer")
-            .chain(dispatches.iter().map(|(n, _)| *n))
-            .collect();
-        let stage_ms = match &ticks {
-            Some(t) => STAGES
-                .iter()
-                .filter(|(_, name)| ran.contains(name))
-                .map(|(st, name)| {
-                    let i = *st as usize * 2;
-                    let ms = t[i + 1].saturating_sub(t[i]) as f64
-                        * ctx.timestamp_period_ns as f64
-                        * 1e-6;
-                    StageTiming {
-                        stage: name.to_string(),
-                        gpu_ms: ms,
-                    }
-                })
-                .collect(),
-            None => Vec::new(),
-        };
-        let images = pixels
-            .chunks_exact((width * height * 4) as usize)
-            .map(<[u8]>::to_vec)
-            .collect();
+    /// Groups the targets by view size into viewer sets (dropping sets no target uses),
+    /// lays each set out and writes every set's and the world's viewer uniforms.
+    fn prepare_sets(&mut self, targets: &[FrameTarget], frame: FrameGpu) -> anyhow::Result<()> {
+        let mut by_size: BTreeMap<(u32, u32), Vec<(usize, &FrameTarget)>> = BTreeMap::new();
+        for (i, t) in targets.iter().enumerate() {
+            by_size
+                .entry((t.view_width, t.view_height))
+                .or_default()
+                .push((i, t));
+        }
+        self.sets.retain(|size, _| by_size.contains_key(size));
+        let w = &mut self.world;
+        let clip = (w.scene.render.near_m, w.scene.render.far_m);
+        for (size, members) in &by_size {
+            let set = match self.sets.entry(*size) {
+                Entry::Occupied(e) => e.into_mut(),
+                Entry::Vacant(e) => e.insert(ViewerSet::new(&w.ctx, &w.gpu, &w.settings, members)?),
+            };
+            set.prepare(&w.ctx, &w.gpu, &w.settings, members, clip, frame)?;
+        }
+        let views: Vec<ViewGpu> = self.sets.values().flat_map(|s| s.gpu_views.iter().copied()).collect();
+        let rasters: Vec<_> = self.sets.values().flat_map(|s| s.raster_views.iter().copied()).collect();
+        self.stages.gbuffer.upload(&w.ctx, &rasters);
+        w.write_views(frame, &views)
+    }
+
+    /// Splits the readback into the targets' images and the frame's stats; hands every
+    /// set its history for the next frame.
+    fn finish_frame(
+        &mut self,
+        targets: &[FrameTarget],
+        bytes: ReadbackBytes,
+        ran: &[Stage],
+        frame_ms: f64,
+    ) -> anyhow::Result<TargetsOutput> {
+        let world = &self.world;
+        let mut images = vec![Vec::new(); targets.len()];
+        for (set, output) in self.sets.values().zip(&bytes.outputs) {
+            for t in &set.targets {
+                let at = (t.first_pixel * 4) as usize;
+                let mut image = output[at..at + (t.pixels * 4) as usize].to_vec();
+                targets[t.target].fill_uncovered(&mut image);
+                images[t.target] = image;
+            }
+        }
+        let stage_ms = self
+            .timestamps
+            .stage_ms(&bytes.ticks, world.ctx.timestamp_period_ns);
+        let dispatches = dispatches(ran, world, &self.sets);
         let stats = stats::build(stats::StatsInput {
-            settings: &self.settings,
-            scene: &self.scene,
-            triangles: self.triangles,
-            counters: &counters,
-            grid: self.grid.as_ref(),
-            shadow_map_bytes: self.shadow_maps.bytes(),
-            scene_memory: &self.scene_gpu.memory,
-            volumes: vol,
+            world,
+            counters: &bytes.counters,
+            sets: self.sets.values().map(|s| &s.vol).collect(),
             stage_ms,
             frame_ms,
             dispatches,
-            frame_index: self.frame_index,
-            timestamps: ctx.has_timestamps,
         });
-        self.frame_index = self.frame_index.wrapping_add(1);
-        Ok(FrameOutput {
-            width,
-            height,
-            images,
-            stats,
+        let froxels_written = world.has_media();
+        for set in self.sets.values_mut() {
+            set.finish(&world.settings, froxels_written);
+        }
+        self.world.frame_index = self.world.frame_index.wrapping_add(1);
+        Ok(TargetsOutput { images, stats })
+    }
+}
+
+/// Workgroups of every stage that ran: world stages once, viewer stages per set (what
+/// stats report; the G-buffer is raster work and has none).
+fn dispatches(
+    ran: &[Stage],
+    world: &World,
+    sets: &BTreeMap<(u32, u32), ViewerSet>,
+) -> Vec<(&'static str, [u32; 3])> {
+    let mut out = Vec::new();
+    for &stage in ran {
+        let per_set = |f: fn(&viewer_volumes::Workgroups) -> [u32; 3]| {
+            sets.values().map(move |s| f(&s.vol.groups))
+        };
+        let groups: Vec<[u32; 3]> = match stage {
+            Stage::GBuffer => Vec::new(),
+            Stage::ShadowMaps => vec![[0, 0, 0]],
+            Stage::MediaTransmittance => vec![world.transmittance.workgroups()],
+            Stage::SharedGrid => world.grid.iter().map(|g| g.workgroups()).collect(),
+            Stage::GridRequests | Stage::FroxelLighting | Stage::VolumeIntegration => {
+                per_set(|g| g.columns).collect()
+            }
+            Stage::ShadowFrustum => per_set(|g| g.frustum).collect(),
+            Stage::Composite => per_set(|g| g.pixels).collect(),
+        };
+        out.extend(groups.into_iter().map(|g| (stage.name(), g)));
+    }
+    out
+}
+
+/// The frame's one readback: counters, timestamps and every set's output in one buffer.
+struct Readback {
+    staging: wgpu::Buffer,
+    counters: u64,
+    ticks: (u64, u64),
+    outputs: Vec<(u64, u64)>,
+}
+
+/// What a [`Readback`] brought back.
+struct ReadbackBytes {
+    counters: Vec<u32>,
+    ticks: Vec<u64>,
+    outputs: Vec<Vec<u8>>,
+}
+
+impl Readback {
+    fn record(
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        world: &World,
+        sets: &BTreeMap<(u32, u32), ViewerSet>,
+        ts: &Timestamps,
+    ) -> Readback {
+        let align = |n: u64| n.next_multiple_of(256);
+        let counters = world.gpu.counters.size();
+        let tick_bytes = ts.frame_bytes();
+        let mut at = align(counters) + align(tick_bytes);
+        let outputs: Vec<(u64, u64)> = sets
+            .values()
+            .map(|s| {
+                let range = (at, s.vol.output_pixels * 4);
+                at += align(range.1);
+                range
+            })
+            .collect();
+        let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("frame readback"),
+            size: at.max(16),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        enc.copy_buffer_to_buffer(&world.gpu.counters, 0, &staging, 0, counters);
+        ts.resolve(enc, &staging, align(counters));
+        for (set, (offset, bytes)) in sets.values().zip(&outputs) {
+            enc.copy_buffer_to_buffer(&set.vol.output, 0, &staging, *offset, *bytes);
+        }
+        Readback {
+            staging,
+            counters,
+            ticks: (align(counters), tick_bytes),
+            outputs,
+        }
+    }
+
+    fn map(self, ctx: &GpuContext) -> anyhow::Result<ReadbackBytes> {
+        let bytes = map_read(&ctx.device, &self.staging)?;
+        let range = |(at, n): (u64, u64)| &bytes[at as usize..(at + n) as usize];
+        Ok(ReadbackBytes {
+            counters: bytemuck::pod_collect_to_vec(range((0, self.counters))),
+            ticks: bytemuck::pod_collect_to_vec(range(self.ticks)),
+            outputs: self.outputs.iter().map(|r| range(*r).to_vec()).collect(),
         })
     }
 }

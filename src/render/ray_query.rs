@@ -124,13 +124,16 @@ impl ShadowRayQuery {
                     label: Some("ray query"),
                 });
             {
-                let mut pass = super::compute_pass(&mut enc, "ray_query", None);
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("ray_query"),
+                    timestamp_writes: None,
+                });
                 pass.set_pipeline(&self.pipeline);
                 pass.set_bind_group(0, &self.scene_bind_group, &[]);
                 pass.set_bind_group(1, &bind_group, &[]);
                 pass.dispatch_workgroups((chunk.len() as u32).div_ceil(64), 1, 1);
             }
-            ctx.queue.submit([enc.finish()]);
+            ctx.submit(enc);
             let hits = ctx.read_buffer(&hits_buf)?;
             occluded.extend(
                 hits.chunks_exact(4)

@@ -308,12 +308,24 @@ impl SceneGpu {
             (self.views_capacity * std::mem::size_of::<ViewGpu>()) as u64,
             wgpu::BufferUsages::empty(),
         )?;
-        self.bind_group = ctx.bind_buffers(
+        self.bind_group = self.bind(ctx, &self.frame, &self.views);
+        Ok(())
+    }
+
+    /// Bind group 0 with `frame` and `views` and the scene's other buffers: the world's
+    /// own (every viewer) or a viewer set's.
+    pub(crate) fn bind(
+        &self,
+        ctx: &GpuContext,
+        frame: &wgpu::Buffer,
+        views: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
+        ctx.bind_buffers(
             "scene",
             &self.layout,
             &[
-                &self.frame,
-                &self.views,
+                frame,
+                views,
                 &self.lights,
                 &self.media,
                 &self.nodes,
@@ -322,8 +334,7 @@ impl SceneGpu {
                 &self.media_t,
                 &self.light_media,
             ],
-        );
-        Ok(())
+        )
     }
 }
 

@@ -2,7 +2,7 @@
 //! with `shaders/shadow_frustum.wgsl`; directional lights with a shared shadow map are
 //! looked up in it (`shaders/shadow_lookup.wgsl`) instead of traced.
 
-use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerSet};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the shadow frustum update.
@@ -28,32 +28,26 @@ impl ShadowFrustum {
         }
     }
 
-    pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
-        let [x, y] = volumes.layout.frustum_dims;
-        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
-    }
-
     pub(crate) fn add_pass(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
-        scene: &wgpu::BindGroup,
-        volumes: &ViewerVolumes,
+        set: &ViewerSet,
         maps: &ShadowMaps,
         ts: &Timestamps,
     ) {
         let own = vec![wgpu::BindGroupEntry {
             binding: 0,
-            resource: volumes.frustum.as_entire_binding(),
+            resource: set.vol.frustum.as_entire_binding(),
         }];
         let bg = maps.stage_bind_group(ctx, "shadow frustum", &self.layout, own);
         dispatch(
             enc,
-            "shadow_frustum",
-            ts.writes(Stage::ShadowFrustum),
+            ts,
+            Stage::ShadowFrustum,
             &self.pipeline,
-            [scene, &bg],
-            Self::workgroups(volumes),
+            &[&set.bind_group, &bg],
+            set.vol.groups.frustum,
         );
     }
 }

@@ -481,8 +481,7 @@ impl ShadowMaps {
                 passes.push((&self.mover_maps, 1, layer));
             }
         }
-        let last = passes.len() - 1;
-        for (i, (set, half, layer)) in passes.into_iter().enumerate() {
+        for (set, half, layer) in passes {
             let view = set.texture.create_view(&wgpu::TextureViewDescriptor {
                 dimension: Some(wgpu::TextureViewDimension::D2),
                 base_array_layer: layer as u32,
@@ -500,7 +499,7 @@ impl ShadowMaps {
                     }),
                     stencil_ops: None,
                 }),
-                timestamp_writes: ts.render_writes(Stage::ShadowMaps, i == 0, i == last),
+                timestamp_writes: ts.render(Stage::ShadowMaps),
                 occlusion_query_set: None,
                 multiview_mask: None,
             });

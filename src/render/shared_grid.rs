@@ -2,12 +2,13 @@
 //! `shaders/shared_grid.wgsl` and `shaders/grid_requests.wgsl`. World-space work: the
 //! update never loops over viewers' pixels.
 //!
-//! Three ways to decide what to trace (see [`UpdatePolicy`]): the paper's frustum-gated
+//! Three ways to decide what to trace (see [`GridUpdate`]): the paper's frustum-gated
 //! update, fogcast's demand-driven update (froxels request the voxels they read), and on
 //! top of either temporal caching. Storage is dense (the whole media box) or sparse:
 //! bricks of 8³ voxels allocated each frame where froxels read (paper §5.1).
 
-use super::{dispatch, Stage, Timestamps, ViewerVolumes};
+use super::gpu_types::{FLAG_CACHE, FLAG_DEMAND, FLAG_SPARSE};
+use super::{dispatch, Settings, Stage, Timestamps, ViewerSet};
 use crate::gpu::GpuContext;
 use glam::{UVec3, Vec3};
 
@@ -35,7 +36,7 @@ pub struct SharedShadowGrid {
     pub(crate) brick_table: wgpu::Buffer,
     /// Sparse: the brick of each pool slot.
     slot_brick: wgpu::Buffer,
-    policy: UpdatePolicy,
+    policy: GridUpdate,
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
     sparse_pipeline: wgpu::ComputePipeline,
@@ -50,20 +51,90 @@ struct RequestPipelines {
     mark_voxels: wgpu::ComputePipeline,
 }
 
-/// How the grid pass decides which voxels to trace, and how the grid is stored.
+/// The two request passes of a viewer set (the sparse grid allocates bricks between).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct UpdatePolicy {
-    /// Only voxels requested by froxels (else every voxel in some frustum).
-    pub demand: bool,
-    /// Keep light bits across frames until the light changes (dense only).
-    pub cache: bool,
-    /// Sparse bricks with a pool of this many bricks (0: dense). Implies `demand`.
-    pub brick_pool: u32,
+pub(crate) enum RequestPhase {
+    /// Voxels (dense) or bricks (sparse) the set's froxels read.
+    Mark,
+    /// Sparse: the voxels, inside the bricks that got a pool slot.
+    Voxels,
 }
 
-impl UpdatePolicy {
-    fn sparse(&self) -> bool {
-        self.brick_pool > 0
+/// How the grid pass decides which voxels to trace, and how the grid is stored: the one
+/// place `demand`, `cache` and `brick_pool` are combined.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GridUpdate {
+    /// Paper 000: every voxel inside some viewer's frustum.
+    Frustum {
+        /// A voxel's light bits stay valid until that light changes or a mover crosses
+        /// its shadow ray.
+        cached: bool,
+    },
+    /// Only the voxels some froxel's lookup reads (beyond the paper).
+    Demand {
+        /// As for `Frustum`.
+        cached: bool,
+    },
+    /// Bricks of 8³ voxels allocated each frame where froxels read (paper 000 §5.1);
+    /// demand-driven, never cached.
+    Sparse {
+        /// Bricks in the pool.
+        pool_bricks: u32,
+    },
+}
+
+impl GridUpdate {
+    /// The update `settings` ask for.
+    pub fn of(settings: &Settings) -> GridUpdate {
+        match (settings.brick_pool, settings.demand) {
+            (pool_bricks @ 1.., _) => GridUpdate::Sparse { pool_bricks },
+            (0, true) => GridUpdate::Demand {
+                cached: settings.cache,
+            },
+            (0, false) => GridUpdate::Frustum {
+                cached: settings.cache,
+            },
+        }
+    }
+
+    /// Whether froxels request the voxels they read (a request stage runs first).
+    pub fn requests(self) -> bool {
+        !matches!(self, GridUpdate::Frustum { .. })
+    }
+
+    /// Whether light bits are kept across frames.
+    pub fn cached(self) -> bool {
+        matches!(
+            self,
+            GridUpdate::Frustum { cached: true } | GridUpdate::Demand { cached: true }
+        )
+    }
+
+    fn sparse(self) -> bool {
+        matches!(self, GridUpdate::Sparse { .. })
+    }
+
+    /// Bricks in the sparse pool (0: dense).
+    pub fn pool_bricks(self) -> u32 {
+        match self {
+            GridUpdate::Sparse { pool_bricks } => pool_bricks,
+            _ => 0,
+        }
+    }
+
+    /// The `Frame.flags` bits of this update (common.wgsl).
+    pub(crate) fn flags(self) -> u32 {
+        let mut flags = 0;
+        if self.requests() {
+            flags |= FLAG_DEMAND;
+        }
+        if self.sparse() {
+            flags |= FLAG_SPARSE;
+        }
+        if self.cached() {
+            flags |= FLAG_CACHE;
+        }
+        flags
     }
 }
 
@@ -87,7 +158,7 @@ impl SharedShadowGrid {
         scene_layout: &wgpu::BindGroupLayout,
         bounds: (Vec3, Vec3),
         voxel_size_m: f32,
-        policy: UpdatePolicy,
+        policy: GridUpdate,
     ) -> anyhow::Result<Self> {
         let (dims, extent) = grid_dims(bounds, voxel_size_m);
         let voxels = dims.x as u64 * dims.y as u64 * dims.z as u64;
@@ -96,17 +167,17 @@ impl SharedShadowGrid {
         let bricks = (dims.x.div_ceil(BRICK) as u64)
             * (dims.y.div_ceil(BRICK) as u64)
             * (dims.z.div_ceil(BRICK) as u64);
-        let pool = policy.brick_pool as u64;
+        let pool = policy.pool_bricks() as u64;
         // Buffers exist only for the options that use them (a 16-byte stand-in keeps
         // the bind groups valid otherwise).
         let (grid_bytes, request_bytes, table_bytes) = if policy.sparse() {
             (pool * BRICK_WORDS * 4, pool * BRICK_WORDS, bricks * 4)
-        } else if policy.demand {
+        } else if policy.requests() {
             (words * 4, voxels * 4, 16)
         } else {
             (words * 4, 16, 16)
         };
-        let valid_bytes = if policy.cache && !policy.sparse() {
+        let valid_bytes = if policy.cached() {
             words * 4
         } else {
             16
@@ -195,7 +266,7 @@ impl SharedShadowGrid {
 
     /// Bricks in the sparse pool (0 when dense).
     pub(crate) fn pool_capacity(&self) -> u32 {
-        self.policy.brick_pool
+        self.policy.pool_bricks()
     }
 
     /// Bytes the light masks of a dense grid over the same box take (for reports).
@@ -206,7 +277,7 @@ impl SharedShadowGrid {
     /// Dispatch size of the update pass.
     pub(crate) fn workgroups(&self) -> [u32; 3] {
         if self.policy.sparse() {
-            return dispatch_1d(self.policy.brick_pool as u64 * BRICK_WORDS);
+            return dispatch_1d(self.policy.pool_bricks() as u64 * BRICK_WORDS);
         }
         [
             self.words_x.div_ceil(4),
@@ -215,65 +286,86 @@ impl SharedShadowGrid {
         ]
     }
 
-    /// Dispatch size of a request pass: froxel columns × viewers (each invocation walks
-    /// its column's grid slices).
-    pub(crate) fn request_workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
-        let [x, y] = volumes.layout.froxel_dims;
-        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
+    /// The grid's update policy.
+    pub(crate) fn update(&self) -> GridUpdate {
+        self.policy
     }
 
-    /// Records the froxels' voxel requests (demand-driven update; for a sparse grid also
-    /// the brick allocation); returns false when no slice reads the grid (the shadow
-    /// frustum covers them all) and nothing was recorded.
-    pub(crate) fn add_request_passes(
-        &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        scene: &wgpu::BindGroup,
-        volumes: &ViewerVolumes,
-        ts: &Timestamps,
-        span_started: bool,
-    ) -> bool {
+    /// Clears last frame's requests (and brick table): before any set requests voxels.
+    pub(crate) fn clear_requests(&self, enc: &mut wgpu::CommandEncoder) {
         enc.clear_buffer(&self.requests, 0, None);
         if self.policy.sparse() {
             enc.clear_buffer(&self.brick_table, 0, None);
         }
-        if volumes.slices <= volumes.frustum_slices {
-            return false;
-        }
-        let bg = ctx.bind_buffers(
+    }
+
+    fn request_bind_group(&self, ctx: &GpuContext, column_limit: &wgpu::Buffer) -> wgpu::BindGroup {
+        ctx.bind_buffers(
             "grid requests",
             &self.request_layout,
             &[
                 &self.requests,
                 &self.brick_table,
                 &self.slot_brick,
-                &volumes.column_limit,
+                column_limit,
             ],
-        );
-        let froxels = Self::request_workgroups(volumes);
+        )
+    }
+
+    /// Records one viewer set's requests: the voxels (dense) or bricks (sparse, first
+    /// `phase`) and then, after [`Self::add_allocation`], the voxels of the allocated
+    /// bricks (sparse, second `phase`). Nothing when no slice of the set reads the grid.
+    pub(crate) fn add_request_pass(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        set: &ViewerSet,
+        phase: RequestPhase,
+        ts: &Timestamps,
+    ) {
         let p = &self.request_pipelines;
-        let passes: Vec<(&wgpu::ComputePipeline, [u32; 3])> = if self.policy.sparse() {
-            vec![
-                (&p.mark_bricks, froxels),
-                (&p.allocate, dispatch_1d(self.bricks())),
-                (&p.mark_voxels, froxels),
-            ]
-        } else {
-            vec![(&p.dense, froxels)]
+        let pipeline = match (phase, self.policy.sparse()) {
+            (RequestPhase::Mark, false) => &p.dense,
+            (RequestPhase::Mark, true) => &p.mark_bricks,
+            (RequestPhase::Voxels, true) => &p.mark_voxels,
+            (RequestPhase::Voxels, false) => return,
         };
-        let last = passes.len() - 1;
-        for (i, (pipeline, groups)) in passes.into_iter().enumerate() {
-            dispatch(
-                enc,
-                "grid_requests",
-                ts.span_writes(Stage::GridRequests, i == 0 && !span_started, i == last),
-                pipeline,
-                [scene, &bg],
-                groups,
-            );
+        if set.vol.slices <= set.vol.frustum_slices {
+            return;
         }
-        true
+        let bg = self.request_bind_group(ctx, &set.vol.column_limit);
+        dispatch(
+            enc,
+            ts,
+            Stage::GridRequests,
+            pipeline,
+            &[&set.bind_group, &bg],
+            set.vol.groups.columns,
+        );
+    }
+
+    /// Sparse grid: allocates pool slots to the requested bricks (world work, between
+    /// the sets' two request phases).
+    pub(crate) fn add_allocation(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        world: &wgpu::BindGroup,
+        ts: &Timestamps,
+    ) {
+        if !self.policy.sparse() {
+            return;
+        }
+        // The allocation reads no column limits: a stand-in fills the binding.
+        let bg = self.request_bind_group(ctx, &self.valid);
+        dispatch(
+            enc,
+            ts,
+            Stage::GridRequests,
+            &self.request_pipelines.allocate,
+            &[world, &bg],
+            dispatch_1d(self.bricks()),
+        );
     }
 
     /// Records the grid update: every needed voxel traces one ray per (stale) light.
@@ -281,7 +373,7 @@ impl SharedShadowGrid {
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
-        scene: &wgpu::BindGroup,
+        world: &wgpu::BindGroup,
         ts: &Timestamps,
     ) {
         enc.clear_buffer(&self.touched, 0, None);
@@ -303,10 +395,10 @@ impl SharedShadowGrid {
         };
         dispatch(
             enc,
-            "shared_grid",
-            ts.writes(Stage::SharedGrid),
+            ts,
+            Stage::SharedGrid,
             pipeline,
-            [scene, &bg],
+            &[world, &bg],
             self.workgroups(),
         );
     }

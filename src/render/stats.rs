@@ -1,8 +1,7 @@
 //! Per-frame counters: rays per stage, voxels traced, dispatch sizes, memory, timings.
 
 use super::gpu_types::*;
-use super::{Settings, SharedShadowGrid, ViewerVolumes};
-use crate::scene::Scene;
+use super::{Settings, Stage, ViewerVolumes, World};
 use serde::{Deserialize, Serialize};
 
 /// Shadow rays traced in one frame, per stage (deterministic: the noise-free cost).
@@ -23,6 +22,30 @@ pub struct RayCounts {
     pub total: u64,
 }
 
+impl RayCounts {
+    /// The rays `stage` traced (0 for a stage without shadow rays).
+    pub fn of_stage(&self, stage: Stage) -> u64 {
+        match stage {
+            Stage::SharedGrid => self.shared_grid,
+            Stage::ShadowFrustum => self.shadow_frustum,
+            Stage::FroxelLighting => self.froxel_lighting,
+            Stage::Composite => self.surface,
+            _ => 0,
+        }
+    }
+}
+
+/// The viewers of one size in a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ViewSize {
+    /// View width, pixels.
+    pub width: u32,
+    /// View height, pixels.
+    pub height: u32,
+    /// Viewers of this size.
+    pub viewers: usize,
+}
+
 /// GPU time of one stage.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StageTiming {
@@ -37,13 +60,13 @@ pub struct StageTiming {
 pub struct MemoryReport {
     /// Resources shared by all viewers (name → bytes).
     pub shared: Vec<(String, u64)>,
-    /// Resources of one viewer (name → bytes).
+    /// Resources of one viewer of the first view size (name → bytes).
     pub per_viewer: Vec<(String, u64)>,
     /// Sum of `shared`.
     pub shared_total: u64,
     /// Sum of `per_viewer`.
     pub per_viewer_total: u64,
-    /// shared_total + viewers × per_viewer_total.
+    /// shared_total + every viewer's resources (of every size).
     pub total: u64,
 }
 
@@ -56,10 +79,13 @@ pub struct FrameStats {
     pub settings: Settings,
     /// Number of views rendered.
     pub viewers: usize,
-    /// Image width.
+    /// View width (of the first view size when there are several).
     pub width: u32,
-    /// Image height.
+    /// View height (of the first view size when there are several).
     pub height: u32,
+    /// Every view size of the frame, with its number of viewers.
+    #[serde(default)]
+    pub view_sizes: Vec<ViewSize>,
     /// Frame number since the renderer was made.
     pub frame_index: u32,
     /// Triangles in the BVH.
@@ -102,24 +128,19 @@ pub struct FrameStats {
 }
 
 pub(super) struct StatsInput<'a> {
-    pub settings: &'a Settings,
-    pub scene: &'a Scene,
-    pub triangles: usize,
+    pub world: &'a World,
     pub counters: &'a [u32],
-    pub grid: Option<&'a SharedShadowGrid>,
-    /// Bytes of the surface shadow maps (0 without).
-    pub shadow_map_bytes: u64,
-    pub scene_memory: &'a [(&'static str, u64)],
-    pub volumes: &'a ViewerVolumes,
+    /// Every viewer set's volumes (at least one).
+    pub sets: Vec<&'a ViewerVolumes>,
     pub stage_ms: Vec<StageTiming>,
     pub frame_ms: f64,
     pub dispatches: Vec<(&'static str, [u32; 3])>,
-    pub frame_index: u32,
-    pub timestamps: bool,
 }
 
 pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
     let c = |k: usize| i.counters[k] as u64;
+    let w = i.world;
+    let grid = w.grid.as_ref();
     let mut rays = RayCounts {
         shared_grid: c(C_GRID_RAYS),
         shadow_frustum: c(C_FRUSTUM_RAYS),
@@ -129,61 +150,79 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
     };
     rays.fog_total = rays.shared_grid + rays.shadow_frustum + rays.froxel_lighting;
     rays.total = rays.fog_total + rays.surface;
-    let mut shared: Vec<(String, u64)> = i
-        .scene_memory
+    let mut shared: Vec<(String, u64)> = w
+        .gpu
+        .memory
         .iter()
         .map(|(n, b)| (n.to_string(), *b))
         .collect();
-    if let Some(g) = i.grid {
-        shared.push(("shared_grid".into(), g.bytes()));
+    if let Some(g) = grid {
+        shared.push((Stage::SharedGrid.name().into(), g.bytes()));
     }
-    if i.shadow_map_bytes > 0 {
-        shared.push(("shadow_maps".into(), i.shadow_map_bytes));
+    if w.shadow_maps.bytes() > 0 {
+        shared.push((Stage::ShadowMaps.name().into(), w.shadow_maps.bytes()));
     }
-    let per_viewer: Vec<(String, u64)> = i
-        .volumes
-        .memory_per_viewer()
-        .into_iter()
-        .map(|(n, b)| (n.to_string(), b))
-        .collect();
-    let shared_total = shared.iter().map(|(_, b)| b).sum();
-    let per_viewer_total = per_viewer.iter().map(|(_, b)| b).sum::<u64>();
+    let per_viewer_of = |v: &ViewerVolumes| -> Vec<(String, u64)> {
+        v.memory_per_viewer()
+            .into_iter()
+            .map(|(n, b)| (n.to_string(), b))
+            .collect()
+    };
+    let total_of = |list: &[(String, u64)]| list.iter().map(|(_, b)| b).sum::<u64>();
+    let first = i.sets[0];
+    let per_viewer = per_viewer_of(first);
+    let shared_total = total_of(&shared);
+    let per_viewer_total = total_of(&per_viewer);
+    let viewers_total: u64 = i
+        .sets
+        .iter()
+        .map(|v| total_of(&per_viewer_of(v)) * v.count as u64)
+        .sum();
     FrameStats {
-        scene: i.scene.name.clone(),
-        settings: *i.settings,
-        viewers: i.volumes.count,
-        width: i.volumes.layout.width,
-        height: i.volumes.layout.height,
-        frame_index: i.frame_index,
-        triangles: i.triangles,
-        lights: i.scene.lights.len(),
+        scene: w.scene.name.clone(),
+        settings: w.settings,
+        viewers: i.sets.iter().map(|v| v.count).sum(),
+        width: first.layout.width,
+        height: first.layout.height,
+        view_sizes: i
+            .sets
+            .iter()
+            .map(|v| ViewSize {
+                width: v.layout.width,
+                height: v.layout.height,
+                viewers: v.count,
+            })
+            .collect(),
+        frame_index: w.frame_index,
+        triangles: w.triangles,
+        lights: w.scene.lights.len(),
         rays,
         voxels_traced: c(C_VOXELS_TRACED),
         voxels_needed: c(C_VOXELS_NEEDED),
         froxels_with_media: c(C_FROXELS_WITH_MEDIA),
         transmittance_nodes: c(C_TRANSMITTANCE_NODES),
-        grid_dense_bytes: i.grid.map_or(0, |g| g.dense_bytes()),
-        grid_pool_bricks: i.grid.map_or(0, |g| g.pool_capacity() as u64),
-        grid_bricks_requested: if i.grid.is_some_and(|g| g.is_sparse()) {
+        grid_dense_bytes: grid.map_or(0, |g| g.dense_bytes()),
+        grid_pool_bricks: grid.map_or(0, |g| g.pool_capacity() as u64),
+        grid_bricks_requested: if grid.is_some_and(|g| g.is_sparse()) {
             c(C_BRICKS)
         } else {
             0
         },
-        grid_dims: i.grid.map_or([0; 3], |g| g.dims.to_array()),
+        grid_dims: grid.map_or([0; 3], |g| g.dims.to_array()),
         dispatches: i
             .dispatches
             .into_iter()
             .map(|(n, d)| (n.to_string(), d))
             .collect(),
         memory: MemoryReport {
-            total: shared_total + per_viewer_total * i.volumes.count as u64,
+            total: shared_total + viewers_total,
             shared,
             per_viewer,
             shared_total,
             per_viewer_total,
         },
         stage_gpu_ms: i.stage_ms,
-        timestamps: i.timestamps,
+        timestamps: w.ctx.has_timestamps,
         frame_ms: i.frame_ms,
     }
 }

@@ -37,6 +37,7 @@ fn storage_sizes(
     slices: u32,
     frustum_slices: u32,
     temporal: bool,
+    output_pixels: u64,
 ) -> [(&'static str, u64); 7] {
     let n = count as u64;
     let columns = n * (layout.froxel_dims[0] * layout.froxel_dims[1]) as u64;
@@ -50,7 +51,7 @@ fn storage_sizes(
         ("shadow frustum", frustum),
         ("tile depth", columns * 4),
         ("column limit", columns * 4),
-        ("output", n * (layout.width * layout.height) as u64 * 4),
+        ("output", output_pixels * 4),
     ]
 }
 
@@ -70,6 +71,7 @@ pub fn largest_binding(
         settings.slices,
         settings.frustum_slices(),
         settings.temporal,
+        count as u64 * width as u64 * height as u64,
     )
     .into_iter()
     .map(|(label, size)| (label, size.max(16).next_multiple_of(16)))
@@ -96,12 +98,27 @@ pub fn viewer_memory_bytes(
         settings.slices,
         settings.frustum_slices(),
         settings.temporal,
+        count as u64 * width as u64 * height as u64,
     )
     .iter()
     .map(|(_, bytes)| bytes.max(&16).next_multiple_of(16))
     .sum();
     buffers + count as u64 * width as u64 * height as u64 * GBUFFER_BYTES_PER_PIXEL
 }
+
+/// Dispatch sizes of the per-viewer stages, computed once per allocation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Workgroups {
+    /// One invocation per froxel column (8 × 8 per workgroup) × viewers.
+    pub columns: [u32; 3],
+    /// One invocation per shadow-frustum column × viewers.
+    pub frustum: [u32; 3],
+    /// One invocation per strip of 4 pixels (8·4 × 8 per workgroup) × viewers.
+    pub pixels: [u32; 3],
+}
+
+/// Pixels per composite invocation (`STRIP` in `shaders/composite.wgsl`).
+const STRIP: u32 = 4;
 
 /// Every viewer's froxel volumes, shadow frustums, G-buffer and output image.
 ///
@@ -111,9 +128,14 @@ pub struct ViewerVolumes {
     pub(crate) layout: ViewerLayout,
     pub(crate) slices: u32,
     pub(crate) frustum_slices: u32,
+    pub(crate) groups: Workgroups,
+    /// Pixels of the output buffer: the frames of every target of the set, one after
+    /// another, each viewer's image a tile of its frame.
+    pub(crate) output_pixels: u64,
     /// In-scattering (src rgb, σt), packed f16: the output of froxel lighting.
     pub(crate) froxels: wgpu::Buffer,
-    /// Last frame's froxels (temporal reprojection), a 16-byte stub when off.
+    /// Last frame's froxels (temporal reprojection): the two buffers swap after every
+    /// frame (a 16-byte stub when off).
     pub(crate) froxel_history: wgpu::Buffer,
     pub(crate) integrated: wgpu::Buffer,
     pub(crate) frustum: wgpu::Buffer,
@@ -126,7 +148,6 @@ pub struct ViewerVolumes {
     pub(crate) gbuf_normal: wgpu::Texture,
     pub(crate) gbuf_albedo: wgpu::Texture,
     pub(crate) gbuf_depth: wgpu::Texture,
-    pub(crate) has_history: bool,
 }
 
 impl ViewerVolumes {
@@ -137,9 +158,10 @@ impl ViewerVolumes {
         slices: u32,
         frustum_slices: u32,
         temporal: bool,
+        output_pixels: u64,
     ) -> anyhow::Result<ViewerVolumes> {
         let [froxels, froxel_history, integrated, frustum, tile_depth, column_limit, output] =
-            storage_sizes(count, &layout, slices, frustum_slices, temporal)
+            storage_sizes(count, &layout, slices, frustum_slices, temporal, output_pixels)
                 .map(|(label, bytes)| ctx.storage(label, bytes, wgpu::BufferUsages::empty()));
         let tex = |label: &str, format: wgpu::TextureFormat| {
             ctx.device.create_texture(&wgpu::TextureDescriptor {
@@ -158,11 +180,23 @@ impl ViewerVolumes {
                 view_formats: &[],
             })
         };
+        let n = count as u32;
+        let per_8 = |[x, y]: [u32; 2]| [x.div_ceil(8), y.div_ceil(8), n];
         Ok(ViewerVolumes {
             count,
             layout,
             slices,
             frustum_slices,
+            output_pixels,
+            groups: Workgroups {
+                columns: per_8(layout.froxel_dims),
+                frustum: per_8(layout.frustum_dims),
+                pixels: [
+                    layout.width.div_ceil(8 * STRIP),
+                    layout.height.div_ceil(8),
+                    n,
+                ],
+            },
             froxels: froxels?,
             froxel_history: froxel_history?,
             integrated: integrated?,
@@ -174,7 +208,6 @@ impl ViewerVolumes {
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
             gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
             gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
-            has_history: false,
         })
     }
 
@@ -205,7 +238,7 @@ impl ViewerVolumes {
                 (self.tile_depth.size() + self.column_limit.size()) / n,
             ),
             ("gbuffer", pixels * GBUFFER_BYTES_PER_PIXEL),
-            ("output", self.output.size() / n),
+            ("output", pixels * 4),
         ]
     }
 }

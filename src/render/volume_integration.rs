@@ -1,7 +1,7 @@
 //! Stage 4 (paper 000 §3.1.4): front-to-back integration of every froxel column, all
 //! viewers in one dispatch, with `shaders/volume_integration.wgsl`.
 
-use super::{dispatch, Stage, Timestamps, ViewerVolumes};
+use super::{dispatch, Stage, Timestamps, ViewerSet};
 use crate::gpu::GpuContext;
 
 /// Pipeline of the volume integration stage.
@@ -24,31 +24,26 @@ impl VolumeIntegration {
         }
     }
 
-    pub(crate) fn workgroups(volumes: &ViewerVolumes) -> [u32; 3] {
-        let [x, y] = volumes.layout.froxel_dims;
-        [x.div_ceil(8), y.div_ceil(8), volumes.count as u32]
-    }
-
     pub(crate) fn add_pass(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
-        scene: &wgpu::BindGroup,
-        volumes: &ViewerVolumes,
+        set: &ViewerSet,
         ts: &Timestamps,
     ) {
+        let v = &set.vol;
         let bg = ctx.bind_buffers(
             "volume integration",
             &self.layout,
-            &[&volumes.froxels, &volumes.integrated],
+            &[&v.froxels, &v.integrated],
         );
         dispatch(
             enc,
-            "volume_integration",
-            ts.writes(Stage::VolumeIntegration),
+            ts,
+            Stage::VolumeIntegration,
             &self.pipeline,
-            [scene, &bg],
-            Self::workgroups(volumes),
+            &[&set.bind_group, &bg],
+            v.groups.columns,
         );
     }
 }

@@ -1,0 +1,243 @@
+//! A viewer set: every viewer of one view size, whatever session it belongs to, in
+//! stacked volumes that one dispatch per stage covers. Viewers are slots in the stack
+//! this frame; what a viewer keeps between frames (its last view-projection and where
+//! its froxels were) is keyed by its stable [`ViewerId`], so viewers joining or leaving
+//! never hand one viewer another's history.
+
+use super::gbuffer::RasterView;
+use super::gpu_types::{FrameGpu, ViewGpu, NO_HISTORY};
+use super::scene_gpu::SceneGpu;
+use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
+use crate::gpu::GpuContext;
+use glam::Mat4;
+use std::collections::HashMap;
+
+/// A viewer's identity across frames (a session's view: session id and view index).
+pub type ViewerId = u64;
+
+/// What the froxel lighting of the next frame needs of a viewer's last frame.
+#[derive(Debug, Clone, Copy)]
+struct History {
+    view_proj: Mat4,
+    froxel_base: u32,
+}
+
+/// Where one target's frame lies in the set's output buffer.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct TargetSlice {
+    /// Index of the target in the frame's list.
+    pub target: usize,
+    /// First pixel in the output buffer.
+    pub first_pixel: u64,
+    /// Pixels of the target's frame.
+    pub pixels: u64,
+}
+
+/// The viewers of one size and everything they own on the GPU.
+pub(crate) struct ViewerSet {
+    pub(crate) vol: ViewerVolumes,
+    /// Bind group 0 of this set's per-viewer stages: the world's buffers with this set's
+    /// frame uniforms and views.
+    pub(crate) bind_group: wgpu::BindGroup,
+    frame: wgpu::Buffer,
+    views: wgpu::Buffer,
+    /// This frame's views, in slot order.
+    pub(crate) gpu_views: Vec<ViewGpu>,
+    pub(crate) raster_views: Vec<RasterView>,
+    /// Where each target of this frame goes in `vol.output`.
+    pub(crate) targets: Vec<TargetSlice>,
+    ids: Vec<ViewerId>,
+    history: HashMap<ViewerId, History>,
+    /// Last frame's froxels when the volumes were reallocated since (new viewers came
+    /// or went): read as history for one frame.
+    carried: Option<wgpu::Buffer>,
+}
+
+impl ViewerSet {
+    /// Allocates a set for `targets` (all of one view size) under `settings`.
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene: &SceneGpu,
+        settings: &Settings,
+        targets: &[(usize, &FrameTarget)],
+    ) -> anyhow::Result<ViewerSet> {
+        let vol = Self::volumes(ctx, settings, targets)?;
+        let (frame, views, bind_group) = Self::uniforms(ctx, scene, vol.count)?;
+        Ok(ViewerSet {
+            vol,
+            bind_group,
+            frame,
+            views,
+            gpu_views: Vec::new(),
+            raster_views: Vec::new(),
+            targets: Vec::new(),
+            ids: Vec::new(),
+            history: HashMap::new(),
+            carried: None,
+        })
+    }
+
+    fn volumes(
+        ctx: &GpuContext,
+        s: &Settings,
+        targets: &[(usize, &FrameTarget)],
+    ) -> anyhow::Result<ViewerVolumes> {
+        let (_, first) = targets[0];
+        ViewerVolumes::new(
+            ctx,
+            targets.iter().map(|(_, t)| t.views.len()).sum(),
+            ViewerLayout::new(s, first.view_width, first.view_height),
+            s.slices,
+            s.frustum_slices(),
+            s.temporal,
+            targets.iter().map(|(_, t)| t.pixels()).sum(),
+        )
+    }
+
+    fn uniforms(
+        ctx: &GpuContext,
+        scene: &SceneGpu,
+        count: usize,
+    ) -> anyhow::Result<(wgpu::Buffer, wgpu::Buffer, wgpu::BindGroup)> {
+        let frame = ctx.storage(
+            "set frame",
+            std::mem::size_of::<FrameGpu>() as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
+        let views = ctx.storage(
+            "set views",
+            (count * std::mem::size_of::<ViewGpu>()) as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
+        let bind_group = scene.bind(ctx, &frame, &views);
+        Ok((frame, views, bind_group))
+    }
+
+    /// Lays this frame's `targets` out in the set (reallocating when the number of
+    /// viewers or pixels changed, carrying last frame's froxels over as history) and
+    /// writes the set's uniforms: `frame` with this set's viewer count, and every view.
+    pub(crate) fn prepare(
+        &mut self,
+        ctx: &GpuContext,
+        scene: &SceneGpu,
+        settings: &Settings,
+        targets: &[(usize, &FrameTarget)],
+        (near, far): (f32, f32),
+        frame: FrameGpu,
+    ) -> anyhow::Result<()> {
+        let count: usize = targets.iter().map(|(_, t)| t.views.len()).sum();
+        let pixels: u64 = targets.iter().map(|(_, t)| t.pixels()).sum();
+        if count != self.vol.count || pixels != self.vol.output_pixels {
+            let old = std::mem::replace(&mut self.vol, Self::volumes(ctx, settings, targets)?);
+            self.carried = settings.temporal.then_some(old.froxel_history);
+            (self.frame, self.views, self.bind_group) = Self::uniforms(ctx, scene, count)?;
+        }
+        let vol = &self.vol;
+        let layout = vol.layout;
+        let aspect = layout.width as f32 / layout.height as f32;
+        let tan_x_scale = aspect;
+        self.gpu_views.clear();
+        self.raster_views.clear();
+        self.targets.clear();
+        self.ids.clear();
+        let mut first_pixel = 0u64;
+        for &(index, t) in targets {
+            self.targets.push(TargetSlice {
+                target: index,
+                first_pixel,
+                pixels: t.pixels(),
+            });
+            for v in &t.views {
+                let slot = self.ids.len() as u32;
+                let c = &v.camera;
+                let vp = c.projection(aspect, near, far) * c.view();
+                let right = c.forward.cross(c.up()).normalize();
+                let up = right.cross(c.forward);
+                let tan_y = (c.fov_y * 0.5).tan();
+                let history = self.history.get(&v.id);
+                self.gpu_views.push(ViewGpu {
+                    view_proj: vp.to_cols_array_2d(),
+                    prev_view_proj: history.map_or(vp, |h| h.view_proj).to_cols_array_2d(),
+                    position: c.position.to_array(),
+                    near,
+                    forward: c.forward.to_array(),
+                    far,
+                    right: right.to_array(),
+                    tan_x: tan_y * tan_x_scale,
+                    up: up.to_array(),
+                    tan_y,
+                    size: [layout.width, layout.height],
+                    froxel_dims: layout.froxel_dims,
+                    frustum_dims: layout.frustum_dims,
+                    froxel_px: settings.froxel_px,
+                    frustum_px: settings.frustum_px,
+                    froxel_base: slot * vol.froxels_per_view(),
+                    frustum_base: slot * vol.frustum_per_view(),
+                    pixel_base: (first_pixel
+                        + v.origin[1] as u64 * t.width as u64
+                        + v.origin[0] as u64) as u32,
+                    jitter: frame_jitter(settings, frame.frame_index),
+                    row_stride: t.width,
+                    history_base: history.map_or(NO_HISTORY, |h| h.froxel_base),
+                    _pad: [0; 2],
+                });
+                self.ids.push(v.id);
+            }
+            first_pixel += t.pixels();
+        }
+        self.raster_views = RasterView::for_cameras(
+            &targets
+                .iter()
+                .flat_map(|(_, t)| t.views.iter().map(|v| v.camera))
+                .collect::<Vec<_>>(),
+            aspect,
+            near,
+            far,
+        );
+        let frame = FrameGpu {
+            view_count: count as u32,
+            ..frame
+        };
+        ctx.queue
+            .write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
+        ctx.queue
+            .write_buffer(&self.views, 0, bytemuck::cast_slice(&self.gpu_views));
+        Ok(())
+    }
+
+    /// Last frame's froxels, as the froxel lighting reads them.
+    pub(crate) fn froxel_history(&self) -> &wgpu::Buffer {
+        self.carried.as_ref().unwrap_or(&self.vol.froxel_history)
+    }
+
+    /// After the frame: this frame's froxels become the next one's history (when the
+    /// froxel stages ran with temporal reprojection on); history of viewers that left
+    /// is dropped.
+    pub(crate) fn finish(&mut self, settings: &Settings, froxels_written: bool) {
+        self.carried = None;
+        self.history.clear();
+        if !(settings.temporal && froxels_written) {
+            return;
+        }
+        std::mem::swap(&mut self.vol.froxels, &mut self.vol.froxel_history);
+        for (id, v) in self.ids.iter().zip(&self.gpu_views) {
+            self.history.insert(
+                *id,
+                History {
+                    view_proj: Mat4::from_cols_array_2d(&v.view_proj),
+                    froxel_base: v.froxel_base,
+                },
+            );
+        }
+    }
+}
+
+/// Per-frame jitter along the view ray (a 1-D low-discrepancy sequence, centred) with
+/// temporal reprojection on; 0 without.
+fn frame_jitter(s: &Settings, frame_index: u32) -> f32 {
+    if s.temporal {
+        ((frame_index as f32 * 0.618_034).fract() - 0.5) * 0.999
+    } else {
+        0.0
+    }
+}

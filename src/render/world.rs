@@ -1,0 +1,245 @@
+//! The world: everything that does not depend on an eye, on the GPU once for every
+//! viewer of every size — the scene (BVH, raster meshes, movers), the shared shadow grid,
+//! the shared shadow maps, the media's transmittance toward the lights — and what
+//! changed since the last frame (lights, movers). Its stages run once per frame, before
+//! any viewer set reads them.
+
+use super::gpu_types::*;
+use super::media_transmittance::{self, MediaTransmittance};
+use super::scene_gpu::SceneGpu;
+use super::shadow_maps::ShadowMaps;
+use super::shared_grid::{GridUpdate, SharedShadowGrid};
+use super::{Mode, Settings, Timestamps};
+use crate::gpu::GpuContext;
+use crate::scene::{Bvh, Scene};
+use glam::Vec3;
+use std::sync::Arc;
+
+/// How a froxel beyond the shadow frustum finds whether each light reaches it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lookup {
+    /// A shadow ray per froxel and light (`reference`).
+    Rays,
+    /// The shared grid's nearest voxel.
+    GridNearest,
+    /// The shared grid's 8 neighbouring voxels, trilinearly (paper 000 §3.1.3).
+    GridTrilinear,
+}
+
+impl Lookup {
+    /// The lookup `settings` ask for.
+    pub fn of(settings: &Settings) -> Lookup {
+        match (settings.mode, settings.trilinear) {
+            (Mode::Reference, _) => Lookup::Rays,
+            (Mode::Shared, false) => Lookup::GridNearest,
+            (Mode::Shared, true) => Lookup::GridTrilinear,
+        }
+    }
+
+    fn flags(self) -> u32 {
+        match self {
+            Lookup::Rays => 0,
+            Lookup::GridNearest => FLAG_SHARED,
+            Lookup::GridTrilinear => FLAG_SHARED | FLAG_TRILINEAR,
+        }
+    }
+}
+
+/// The scene and every view-independent structure, one per server or tool run.
+pub struct World {
+    pub(crate) ctx: Arc<GpuContext>,
+    pub(crate) scene: Arc<Scene>,
+    pub(crate) settings: Settings,
+    pub(crate) gpu: SceneGpu,
+    pub(crate) grid: Option<SharedShadowGrid>,
+    pub(crate) shadow_maps: ShadowMaps,
+    pub(crate) transmittance: MediaTransmittance,
+    /// The lights as last uploaded (animated lights move; a change marks the light dirty).
+    lights_uploaded: Option<Vec<LightGpu>>,
+    /// Scene time of the movers as last uploaded.
+    movers_time: Option<f32>,
+    pub(crate) frame_index: u32,
+    pub(crate) triangles: usize,
+}
+
+impl World {
+    /// Uploads `scene` (with its BVH built before) and allocates the shared structures
+    /// `settings` ask for.
+    pub fn new(
+        ctx: Arc<GpuContext>,
+        scene: Arc<Scene>,
+        bvh: &Bvh,
+        settings: Settings,
+    ) -> anyhow::Result<World> {
+        settings.validate()?;
+        let shared = settings.mode == Mode::Shared;
+        let light_media = media_transmittance::plan(
+            &scene,
+            if shared {
+                settings.transmittance_voxel_m
+            } else {
+                0.0
+            },
+        );
+        let gpu = SceneGpu::new(&ctx, &scene, bvh, &light_media)?;
+        let grid = match scene.media_bounds() {
+            Some(bounds) if shared && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
+                &ctx,
+                &gpu.layout,
+                bounds,
+                settings.voxel_size_m,
+                GridUpdate::of(&settings),
+            )?),
+            _ => None,
+        };
+        Ok(World {
+            shadow_maps: ShadowMaps::new(
+                &ctx,
+                &scene,
+                if shared { settings.shadow_map_px } else { 0 },
+            ),
+            transmittance: MediaTransmittance::new(&ctx, &gpu.layout, &scene, &light_media),
+            triangles: bvh.triangle_count()
+                + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
+            gpu,
+            grid,
+            lights_uploaded: None,
+            movers_time: None,
+            frame_index: 0,
+            ctx,
+            scene,
+            settings,
+        })
+    }
+
+    /// Whether the scene has media (else no froxel stage runs).
+    pub(crate) fn has_media(&self) -> bool {
+        !self.scene.media.is_empty()
+    }
+
+    /// Whether froxels beyond the shadow frustum read the shared grid.
+    pub(crate) fn grid_in_use(&self) -> bool {
+        self.has_media() && self.grid.is_some()
+    }
+
+    /// Uploads what changed by scene time `time_s` — animated lights (marking those that
+    /// moved), the movers' tree and the bounds they swept — and returns the frame's
+    /// uniforms (without viewers).
+    pub(crate) fn begin_frame(&mut self, time_s: f32) -> anyhow::Result<FrameGpu> {
+        let scene = &self.scene;
+        let s = &self.settings;
+        let lights: Vec<LightGpu> = scene.lights_at(time_s).iter().map(LightGpu::from).collect();
+        let dirty_lights = match &self.lights_uploaded {
+            Some(prev) => lights
+                .iter()
+                .zip(prev)
+                .enumerate()
+                .filter(|(_, (a, b))| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
+                .fold(0u32, |m, (i, _)| m | (1 << i)),
+            None => (1u32 << lights.len()) - 1,
+        };
+        if dirty_lights != 0 {
+            self.gpu.write_lights(&self.ctx, &lights);
+        }
+        self.lights_uploaded = Some(lights);
+        let transmittance_dirty = self.transmittance.dirty(dirty_lights);
+        // Movers: their tree and vertices at this time, and the bounds they swept since
+        // the last frame (what cached grid bits must be re-checked against).
+        let mover_root = self.gpu.write_movers(&self.ctx, scene, time_s)?;
+        let mut moved = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        if let Some(prev) = self.movers_time.filter(|p| *p != time_s) {
+            for m in &scene.movers {
+                for (lo, hi) in [m.bounds_at(prev), m.bounds_at(time_s)] {
+                    moved = (moved.0.min(lo), moved.1.max(hi));
+                }
+            }
+        }
+        self.movers_time = Some(time_s);
+        let mut flags = Lookup::of(s).flags();
+        if s.parity {
+            flags |= FLAG_PARITY;
+        }
+        if self.has_media() {
+            flags |= FLAG_MEDIA;
+        }
+        if let Some(g) = &self.grid {
+            flags |= g.update().flags();
+        }
+        if self.transmittance.in_use() {
+            flags |= FLAG_MEDIA_T;
+        }
+        // Only where the culling passes run: a grid exists (media and lights).
+        if s.culls_hidden_froxels() && self.grid.is_some() {
+            flags |= FLAG_CULL;
+        }
+        let (lo, hi) = scene.bounds;
+        let g = self.grid.as_ref();
+        Ok(FrameGpu {
+            grid_min: g.map_or([0.0; 3], |g| g.min.to_array()),
+            voxel_size: g.map_or(1.0, |g| g.voxel_size_m),
+            grid_dims: g.map_or([1; 3], |g| g.dims.to_array()),
+            light_count: scene.lights.len() as u32,
+            sky: scene.render.sky,
+            medium_count: scene.media.len() as u32,
+            ambient: scene.render.ambient,
+            exposure: scene.render.exposure,
+            view_count: 0,
+            frame_index: self.frame_index,
+            flags,
+            time_s,
+            grid_words_x: g.map_or(1, |g| g.words_x),
+            // A directional shadow ray never needs to be longer than the scene.
+            max_ray_m: (hi - lo).length() + 1.0,
+            frustum_slices: if s.mode == Mode::Shared {
+                s.frustum_slices()
+            } else {
+                0
+            },
+            slices: s.slices,
+            depth_curve: s.depth_curve,
+            dirty_lights,
+            pool_capacity: s.brick_pool,
+            mover_root,
+            moved_min: moved.0.to_array(),
+            transmittance_dirty,
+            moved_max: moved.1.to_array(),
+            media_step_m: s.media_step_m,
+        })
+    }
+
+    /// Writes the world's own uniforms: `frame` with every viewer of every set (the
+    /// frustum-gated grid update tests voxels against all of them).
+    pub(crate) fn write_views(&mut self, frame: FrameGpu, views: &[ViewGpu]) -> anyhow::Result<()> {
+        self.gpu.ensure_views(&self.ctx, views.len())?;
+        let frame = FrameGpu {
+            view_count: views.len() as u32,
+            ..frame
+        };
+        let q = &self.ctx.queue;
+        q.write_buffer(&self.gpu.frame, 0, bytemuck::bytes_of(&frame));
+        q.write_buffer(&self.gpu.views, 0, bytemuck::cast_slice(views));
+        Ok(())
+    }
+
+    /// Records the shared shadow maps (when a light turned or a mover moved).
+    pub(crate) fn add_shadow_maps(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        time_s: f32,
+        ts: &Timestamps,
+    ) -> bool {
+        let (ctx, scene, gpu) = (&self.ctx, &self.scene, &self.gpu);
+        self.shadow_maps.add_passes(ctx, enc, scene, gpu, time_s, ts)
+    }
+
+    /// Records the media transmittance toward the lights whose volume is stale.
+    pub(crate) fn add_transmittance(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        frame: &FrameGpu,
+        ts: &Timestamps,
+    ) -> bool {
+        self.transmittance
+            .add_pass(enc, &self.gpu.bind_group, frame.transmittance_dirty, ts)
+    }
+}
