@@ -1,5 +1,5 @@
-//! Failures are loud and contained: a render that fails (error or panic) closes only
-//! the sessions of that view size with a reason, `/healthz` turns `degraded`, encoder
+//! Failures are loud and contained: a render that fails (error or panic) is retried per
+//! view size and closes only the sessions of the size that fails, with a reason, `/healthz` turns `degraded`, encoder
 //! panics are caught, and a session that never gets a frame is closed, not left hanging.
 //! Faults are injected in the real server's render loop (`ServerConfig::fault`).
 
@@ -124,22 +124,32 @@ async fn a_silently_skipped_session_is_closed_by_the_frame_timeout() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_new_view_size_is_prepared_without_stalling_other_viewers() {
-    let server = start(faulty(FaultKind::SlowBuild)).await;
+async fn a_new_view_size_joins_the_one_world_and_every_frame_is_one_render_call() {
+    let server = start(test_config()).await;
     let addr = server.local_addr();
     let viewer = Viewer::start(addr, 64, 36).await;
     viewer.wait_frames(0, 2).await;
-    let mut ws = connect(addr).await;
-    welcome(&mut ws, hello(96, 54)).await;
-    let before = viewer.frames();
-    // Its renderer takes 3 s more to build; the render loop goes on meanwhile.
-    let (h, _) = next_frame(&mut ws).await;
-    let during = viewer.frames() - before;
-    eprintln!("the other viewer got {during} frames while the new size was prepared");
-    assert_eq!((h.width, h.height), (96, 54));
-    assert!(
-        during >= 10,
-        "{during} frames in 3 s at 20 fps: the frame stalled"
+    let other = Viewer::start(addr, 96, 54).await;
+    other.wait_frames(0, 2).await;
+    let m = wait_metrics(addr, "both view sizes in one frame", |m| {
+        metric(m, "fogcast_view_sizes", "") == 2.0
+    })
+    .await;
+    let (frames, calls) = (
+        metric(&m, "fogcast_frames_total", ""),
+        metric(&m, "fogcast_render_calls_total", ""),
+    );
+    let (v0, o0) = (viewer.frames(), other.frames());
+    viewer.wait_frames(v0, 3).await;
+    other.wait_frames(o0, 3).await;
+    let m = metrics(addr).await;
+    let frames = metric(&m, "fogcast_frames_total", "") - frames;
+    let calls = metric(&m, "fogcast_render_calls_total", "") - calls;
+    eprintln!("{frames} frames, {calls} render calls with two view sizes");
+    assert!(frames >= 3.0, "{frames}");
+    assert_eq!(
+        calls, frames,
+        "one render call (one world) per frame, not one per size"
     );
     server.shutdown().await.unwrap();
 }

@@ -28,14 +28,15 @@ fn nan_and_inf_in_the_history_are_discarded() {
         };
         let mut r = Renderer::new(ctx.clone(), scene.clone(), settings).expect("renderer");
         r.render(&cams, W, H, 0.0).expect("frame 1");
-        let vol = r.volumes.as_ref().expect("volumes after a frame");
-        assert!(vol.has_history, "frame 1 leaves a history behind");
+        let set = r.sets.values().next().expect("a viewer set after a frame");
+        assert!(set.has_history(), "frame 1 leaves a history behind");
         if poison {
             // Every f16 of every history froxel: rgb and σt alike.
-            let halves = (vol.froxel_history.size() / 2) as usize;
+            let history = set.froxel_history();
+            let halves = (history.size() / 2) as usize;
             let words: Vec<u16> = (0..halves).map(|i| POISON[i % POISON.len()]).collect();
             ctx.queue
-                .write_buffer(&vol.froxel_history, 0, bytemuck::cast_slice(&words));
+                .write_buffer(history, 0, bytemuck::cast_slice(&words));
         }
         let second = r.render(&cams, W, H, 1.0 / 30.0).expect("frame 2");
         for (i, f) in r

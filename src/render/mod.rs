@@ -340,12 +340,8 @@ impl Renderer {
         let started = Instant::now();
         let frame = self.world.begin_frame(time_s)?;
         self.prepare_sets(targets, frame)?;
-        let (world, stages, sets, ts) = (
-            &mut self.world,
-            &self.stages,
-            &self.sets,
-            &self.timestamps,
-        );
+        let (world, stages, sets, ts) =
+            (&mut self.world, &self.stages, &self.sets, &self.timestamps);
         let ctx = world.ctx.clone();
         let mut enc = ctx
             .device
@@ -357,35 +353,63 @@ impl Renderer {
         // The frame, top to bottom: each line one stage, for the world or every set.
         let mut first = 0;
         for set in sets.values() {
-            stages.gbuffer.add_passes(&ctx, &mut enc, &world.gpu, set, first, ts);
+            stages
+                .gbuffer
+                .add_passes(&ctx, &mut enc, &world.gpu, set, first, ts);
             first += set.vol.count;
         }
-        ran.extend(world.add_shadow_maps(&mut enc, time_s, ts).then_some(Stage::ShadowMaps));
-        ran.extend(world.add_transmittance(&mut enc, &frame, ts).then_some(Stage::MediaTransmittance));
+        ran.extend(
+            world
+                .add_shadow_maps(&mut enc, time_s, ts)
+                .then_some(Stage::ShadowMaps),
+        );
+        ran.extend(
+            world
+                .add_transmittance(&mut enc, &frame, ts)
+                .then_some(Stage::MediaTransmittance),
+        );
         if let Some(grid) = world.grid.as_ref().filter(|_| world.grid_in_use()) {
             if grid.update().requests() {
                 grid.clear_requests(&mut enc);
                 if frame.flags & FLAG_CULL != 0 {
-                    sets.values().for_each(|set| stages.cull.add_passes(&ctx, &mut enc, set, ts));
+                    sets.values()
+                        .for_each(|set| stages.cull.add_passes(&ctx, &mut enc, set, ts));
                 }
-                sets.values().for_each(|set| grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Mark, ts));
+                sets.values().for_each(|set| {
+                    grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Mark, ts)
+                });
                 grid.add_allocation(&ctx, &mut enc, &world.gpu.bind_group, ts);
-                sets.values().for_each(|set| grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Voxels, ts));
+                sets.values().for_each(|set| {
+                    grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Voxels, ts)
+                });
                 ran.push(Stage::GridRequests);
             }
             grid.add_pass(&ctx, &mut enc, &world.gpu.bind_group, ts);
             ran.push(Stage::SharedGrid);
             if frame.frustum_slices > 0 {
-                sets.values().for_each(|set| stages.frustum.add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts));
+                sets.values().for_each(|set| {
+                    stages
+                        .frustum
+                        .add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts)
+                });
                 ran.push(Stage::ShadowFrustum);
             }
         }
         if world.has_media() {
-            sets.values().for_each(|set| stages.lighting.add_pass(&ctx, &mut enc, set, world.grid.as_ref(), ts));
-            sets.values().for_each(|set| stages.integration.add_pass(&ctx, &mut enc, set, ts));
+            sets.values().for_each(|set| {
+                stages
+                    .lighting
+                    .add_pass(&ctx, &mut enc, set, world.grid.as_ref(), ts)
+            });
+            sets.values()
+                .for_each(|set| stages.integration.add_pass(&ctx, &mut enc, set, ts));
             ran.extend([Stage::FroxelLighting, Stage::VolumeIntegration]);
         }
-        sets.values().for_each(|set| stages.composite.add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts));
+        sets.values().for_each(|set| {
+            stages
+                .composite
+                .add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts)
+        });
         ran.push(Stage::Composite);
         let readback = Readback::record(&ctx, &mut enc, world, sets, ts);
         ctx.submit(enc);
@@ -414,8 +438,16 @@ impl Renderer {
             };
             set.prepare(&w.ctx, &w.gpu, &w.settings, members, clip, frame)?;
         }
-        let views: Vec<ViewGpu> = self.sets.values().flat_map(|s| s.gpu_views.iter().copied()).collect();
-        let rasters: Vec<_> = self.sets.values().flat_map(|s| s.raster_views.iter().copied()).collect();
+        let views: Vec<ViewGpu> = self
+            .sets
+            .values()
+            .flat_map(|s| s.gpu_views.iter().copied())
+            .collect();
+        let rasters: Vec<_> = self
+            .sets
+            .values()
+            .flat_map(|s| s.raster_views.iter().copied())
+            .collect();
         self.stages.gbuffer.upload(&w.ctx, &rasters);
         w.write_views(frame, &views)
     }

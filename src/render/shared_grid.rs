@@ -177,11 +177,7 @@ impl SharedShadowGrid {
         } else {
             (words * 4, 16, 16)
         };
-        let valid_bytes = if policy.cached() {
-            words * 4
-        } else {
-            16
-        };
+        let valid_bytes = if policy.cached() { words * 4 } else { 16 };
         let largest = grid_bytes.max(request_bytes).max(table_bytes);
         anyhow::ensure!(
             largest <= ctx.max_storage_binding,

@@ -163,7 +163,9 @@ impl Timestamps {
         let i = passes.len() as u32;
         if i >= MAX_TIMED_PASSES {
             if i == MAX_TIMED_PASSES {
-                tracing::warn!("more than {MAX_TIMED_PASSES} passes in a frame: the rest are not timed");
+                tracing::warn!(
+                    "more than {MAX_TIMED_PASSES} passes in a frame: the rest are not timed"
+                );
                 passes.push(stage);
             }
             return None;

@@ -205,6 +205,12 @@ impl ViewerSet {
         Ok(())
     }
 
+    /// Whether some viewer has last frame's froxels to reproject.
+    #[cfg(test)]
+    pub(crate) fn has_history(&self) -> bool {
+        !self.history.is_empty()
+    }
+
     /// Last frame's froxels, as the froxel lighting reads them.
     pub(crate) fn froxel_history(&self) -> &wgpu::Buffer {
         self.carried.as_ref().unwrap_or(&self.vol.froxel_history)

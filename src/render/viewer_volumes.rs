@@ -161,8 +161,15 @@ impl ViewerVolumes {
         output_pixels: u64,
     ) -> anyhow::Result<ViewerVolumes> {
         let [froxels, froxel_history, integrated, frustum, tile_depth, column_limit, output] =
-            storage_sizes(count, &layout, slices, frustum_slices, temporal, output_pixels)
-                .map(|(label, bytes)| ctx.storage(label, bytes, wgpu::BufferUsages::empty()));
+            storage_sizes(
+                count,
+                &layout,
+                slices,
+                frustum_slices,
+                temporal,
+                output_pixels,
+            )
+            .map(|(label, bytes)| ctx.storage(label, bytes, wgpu::BufferUsages::empty()));
         let tex = |label: &str, format: wgpu::TextureFormat| {
             ctx.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),

@@ -229,7 +229,8 @@ impl World {
         ts: &Timestamps,
     ) -> bool {
         let (ctx, scene, gpu) = (&self.ctx, &self.scene, &self.gpu);
-        self.shadow_maps.add_passes(ctx, enc, scene, gpu, time_s, ts)
+        self.shadow_maps
+            .add_passes(ctx, enc, scene, gpu, time_s, ts)
     }
 
     /// Records the media transmittance toward the lights whose volume is stale.

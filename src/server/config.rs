@@ -98,16 +98,14 @@ pub struct Fault {
 #[doc(hidden)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FaultKind {
-    /// The render call returns an error.
+    /// A render call with this size returns an error.
     RenderError,
-    /// The render call panics.
+    /// A render call with this size panics.
     RenderPanic,
     /// The encoder job panics.
     EncodePanic,
-    /// The size group is skipped without a word (the failure mode of old).
+    /// Sessions of this size are skipped without a word (the failure mode of old).
     Skip,
-    /// Building the renderer for this size takes 3 s longer.
-    SlowBuild,
     /// The render loop destroys the GPU device when it meets this size.
     DeviceLost,
 }

@@ -1,5 +1,6 @@
-//! Session frames: tile a session's views into one image, JPEG-encode it behind the
-//! frame header. Runs on the encoder pool, never on the render thread.
+//! Session frames: JPEG-encode a session's frame (its views already tiled into it by the
+//! renderer's composite) behind the frame header. Runs on the encoder pool, never on the
+//! render thread.
 
 use super::hub::{EncodedFrame, Hub, SessionShared};
 use super::protocol::{FrameHeader, SessionSpec, FRAME_HEADER_BYTES};
@@ -9,12 +10,12 @@ use std::sync::atomic::Ordering::{Relaxed, Release};
 use std::sync::Arc;
 use std::time::Instant;
 
-/// One session's views of one frame, waiting to be encoded.
+/// One session's frame, waiting to be encoded.
 pub(crate) struct EncodeJob {
     pub(crate) session: Arc<SessionShared>,
     pub(crate) spec: SessionSpec,
-    /// One tightly packed RGBA8 image per view, `view_width`×`view_height`.
-    pub(crate) images: Vec<Vec<u8>>,
+    /// The tightly packed RGBA8 frame, `width`×`height`, every view in its tile.
+    pub(crate) image: Vec<u8>,
     pub(crate) frame: u32,
     pub(crate) pose_seq: u32,
     pub(crate) render_us: u32,
@@ -50,13 +51,7 @@ impl EncodeJob {
 fn encode(job: &EncodeJob) -> anyhow::Result<Bytes> {
     let started = Instant::now();
     let s = &job.spec;
-    let composed;
-    let rgba: &[u8] = if job.images.len() == 1 && s.views == 1 {
-        &job.images[0]
-    } else {
-        composed = compose(s, &job.images);
-        &composed
-    };
+    let rgba: &[u8] = &job.image;
     let header = FrameHeader {
         layout: s.layout,
         views: s.views as u8,
@@ -82,52 +77,4 @@ fn encode(job: &EncodeJob) -> anyhow::Result<Bytes> {
     let o = FrameHeader::ENCODE_US_OFFSET;
     out[o..o + 4].copy_from_slice(&encode_us.to_le_bytes());
     Ok(Bytes::from(out))
-}
-
-/// The session's frame: views copied into their tiles (unused tiles stay black).
-pub(crate) fn compose(s: &SessionSpec, images: &[Vec<u8>]) -> Vec<u8> {
-    let (w, vw, vh) = (
-        s.width as usize,
-        s.view_width as usize,
-        s.view_height as usize,
-    );
-    let mut frame = vec![0u8; w * s.height as usize * 4];
-    for px in frame.chunks_exact_mut(4) {
-        px[3] = 255;
-    }
-    for (i, img) in images.iter().enumerate() {
-        let (x0, y0) = s.tile_origin(i);
-        for row in 0..vh {
-            let src = &img[row * vw * 4..(row + 1) * vw * 4];
-            let dst = ((y0 as usize + row) * w + x0 as usize) * 4;
-            frame[dst..dst + vw * 4].copy_from_slice(src);
-        }
-    }
-    frame
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::server::protocol::{Layout, SpecLimits};
-
-    #[test]
-    fn split_views_land_in_their_tiles() {
-        let limits = SpecLimits {
-            max_width: 256,
-            max_height: 256,
-            default_quality: 80,
-        };
-        let s = SessionSpec::validate(32, 32, Layout::Split, Some(3), None, None, &limits).unwrap();
-        let images: Vec<Vec<u8>> = (0..3u8)
-            .map(|i| [10 * (i + 1), 0, 0, 255].repeat(16 * 16))
-            .collect();
-        let f = compose(&s, &images);
-        let px = |x: usize, y: usize| f[(y * 32 + x) * 4];
-        assert_eq!(
-            (px(0, 0), px(16, 0), px(0, 16), px(16, 16)),
-            (10, 20, 30, 0)
-        );
-        assert_eq!((px(15, 15), px(31, 15), px(15, 31)), (10, 20, 30));
-    }
 }

@@ -4,13 +4,13 @@
 //! - [`protocol`]: message types, validation, the binary frame header.
 //! - [`config`]: settings, config file; [`ServeArgs`]: the flags over it.
 //! - `hub`: sessions, view accounting, latest poses, latest-frame slots.
-//! - `render_loop`: the render thread (owns the GPU work; groups views by size).
-//! - `encode`: tiles a session's views and JPEG-encodes them on an encoder pool.
+//! - `render_loop`: the render thread (owns the GPU work: one world, every session's
+//!   frame in one submission).
+//! - `encode`: JPEG-encodes a session's frame on an encoder pool.
 //! - `session`: one connection — handshake, validation, rate limits, sending.
 //! - `http`: routes (`/`, `/ws`, `/healthz`, `/metrics`).
 //!
-//! Threads: tokio tasks do all I/O; one std thread renders, another builds renderers for
-//! new view sizes; a small rayon pool encodes.
+//! Threads: tokio tasks do all I/O; one std thread renders; a small rayon pool encodes.
 //! Nothing on the I/O side waits for the GPU and the render thread waits for no client.
 
 mod admission;
@@ -31,7 +31,7 @@ pub use config::ServerConfig;
 pub use telemetry::resident_memory_bytes;
 
 use crate::gpu::GpuContext;
-use crate::render::Settings;
+use crate::render::{Renderer, Settings};
 use crate::scene::{Bvh, Scene};
 use anyhow::Context as _;
 use hub::Hub;
@@ -63,26 +63,33 @@ impl Server {
     pub async fn start(config: ServerConfig) -> anyhow::Result<Server> {
         config.validate()?;
         let cfg = config.clone();
-        let (scene, ctx, bvh) = tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
-            let scene = Arc::new(Scene::load(&cfg.scene)?);
-            let ctx = Arc::new(GpuContext::new()?);
-            let started = Instant::now();
-            let bvh = Bvh::build(&scene.mesh)?;
-            tracing::info!(
-                triangles = bvh.triangle_count(),
-                ms = started.elapsed().as_millis() as u64,
-                "BVH built"
-            );
-            Ok((scene, ctx, bvh))
-        })
-        .await
-        .context("server start-up task")??;
-        let settings = Settings {
-            mode: config.mode,
-            voxel_size_m: config.voxel_size_m.unwrap_or(scene.render.voxel_size_m),
-            ..Settings::default()
-        };
-        settings.validate()?;
+        let (scene, ctx, bvh, settings, renderer) =
+            tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
+                let scene = Arc::new(Scene::load(&cfg.scene)?);
+                let ctx = Arc::new(GpuContext::new()?);
+                let settings = Settings {
+                    mode: cfg.mode,
+                    voxel_size_m: cfg.voxel_size_m.unwrap_or(scene.render.voxel_size_m),
+                    ..Settings::default()
+                };
+                settings.validate()?;
+                let started = Instant::now();
+                let bvh = Bvh::build(&scene.mesh)?;
+                tracing::info!(
+                    triangles = bvh.triangle_count(),
+                    ms = started.elapsed().as_millis() as u64,
+                    "BVH built"
+                );
+                let started = Instant::now();
+                let renderer = Renderer::with_bvh(ctx.clone(), scene.clone(), &bvh, settings)?;
+                tracing::info!(
+                    ms = started.elapsed().as_millis() as u64,
+                    "renderer built: one world for every viewer"
+                );
+                Ok((scene, ctx, bvh, settings, renderer))
+            })
+            .await
+            .context("server start-up task")??;
 
         let bind = SocketAddr::new(config.addr, config.port);
         let listener = tokio::net::TcpListener::bind(bind)
@@ -104,7 +111,7 @@ impl Server {
                 }
             }
         });
-        let render_loop = render_loop::RenderLoop::new(hub.clone(), ctx, bvh, settings)?;
+        let render_loop = render_loop::RenderLoop::new(hub.clone(), ctx, bvh, settings, renderer)?;
         let render = std::thread::Builder::new()
             .name("fogcast-render".into())
             .spawn(move || render_loop.run())?;

@@ -4,7 +4,7 @@
 //! nothing here blocks anyone for longer than a map insert.
 
 use super::protocol::ErrorCode;
-use crate::render::FrameStats;
+use crate::render::{FrameStats, Stage};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicI64, AtomicU64, Ordering::Relaxed};
@@ -79,16 +79,16 @@ pub(crate) struct Telemetry {
     pub(crate) connections: AtomicI64,
     pub(crate) connections_refused: AtomicU64,
     pub(crate) slot_bytes: AtomicI64,
-    pub(crate) renderers: AtomicI64,
+    pub(crate) view_sizes: AtomicI64,
     errors: Mutex<BTreeMap<(ErrorCode, bool), u64>>,
 }
 
-const RAY_STAGES: [&str; 4] = [
-    "shared_grid",
-    "shadow_frustum",
-    "froxel_lighting",
-    "surface",
-];
+/// The stages that trace shadow rays, with their `/metrics` label.
+fn ray_stages() -> impl Iterator<Item = (Stage, &'static str)> {
+    Stage::ALL
+        .into_iter()
+        .filter_map(|s| s.rays().map(|(_, label)| (s, label)))
+}
 
 impl Telemetry {
     /// Adds one render call's counters and GPU stage times.
@@ -96,14 +96,8 @@ impl Telemetry {
         self.render_calls.fetch_add(1, Relaxed);
         self.views_rendered.fetch_add(stats.viewers as u64, Relaxed);
         self.render_seconds.observe_ms(stats.frame_ms);
-        let r = &stats.rays;
-        for (slot, n) in self.rays.iter().zip([
-            r.shared_grid,
-            r.shadow_frustum,
-            r.froxel_lighting,
-            r.surface,
-        ]) {
-            slot.fetch_add(n, Relaxed);
+        for (slot, (stage, _)) in self.rays.iter().zip(ray_stages()) {
+            slot.fetch_add(stats.rays.of_stage(stage), Relaxed);
         }
         let mut stages = self.stage_gpu.lock().unwrap_or_else(|e| e.into_inner());
         for s in &stats.stage_gpu_ms {
@@ -242,15 +236,14 @@ impl Telemetry {
         );
         metric(
             &mut o,
-            "fogcast_renderers",
+            "fogcast_view_sizes",
             "gauge",
-            "Renderers alive (one per view size in use, plus a few idle).",
-            &[("", self.renderers.load(Relaxed) as f64)],
+            "View sizes rendered in the last frame (one viewer set each, all in one world).",
+            &[("", self.view_sizes.load(Relaxed) as f64)],
         );
-        let rays: Vec<(String, f64)> = RAY_STAGES
-            .iter()
+        let rays: Vec<(String, f64)> = ray_stages()
             .zip(&self.rays)
-            .map(|(s, a)| (format!("stage=\"{s}\""), n(a)))
+            .map(|((_, s), a)| (format!("stage=\"{s}\""), n(a)))
             .collect();
         let rays: Vec<(&str, f64)> = rays.iter().map(|(l, v)| (l.as_str(), *v)).collect();
         metric(
