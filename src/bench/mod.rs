@@ -26,7 +26,7 @@ pub use variant::{configurations, mode_variants, parse_variant, BenchVariant};
 
 use crate::gpu::GpuContext;
 use crate::metrics::compare;
-use crate::render::{FrameOutput, Mode, RayCounts, Renderer};
+use crate::render::{FrameOutput, Mode, RayCounts, Renderer, Stage};
 use crate::scene::{Bvh, Camera, Scene};
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
@@ -34,16 +34,17 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::Arc;
 
-/// The stages of paper 000 §3.1 (the fog): what the paper's tables time. The others
-/// (`gbuffer`, `composite`) cost the same in every mode.
-pub const FOG_STAGES: [&str; 6] = [
-    "media_transmittance",
-    "grid_requests",
-    "shared_grid",
-    "shadow_frustum",
-    "froxel_lighting",
-    "volume_integration",
-];
+/// Whether the stage called `name` is one of paper 000 §3.1's fog stages (what its
+/// tables time; [`Stage::is_fog`]). The others (`gbuffer`, `shadow_maps`, `composite`)
+/// cost the same in every mode.
+pub fn is_fog_stage(name: &str) -> bool {
+    Stage::from_name(name).is_some_and(Stage::is_fog)
+}
+
+/// The fog stages' names, comma-separated (for reports).
+pub fn fog_stage_list() -> String {
+    Stage::fog_names().collect::<Vec<_>>().join(", ")
+}
 
 /// Scene time between consecutive frames: a 30 fps stream.
 pub const FRAME_DT_S: f32 = 1.0 / 30.0;
@@ -212,7 +213,7 @@ pub struct BenchPoint {
     pub frames: u32,
     /// GPU time of the whole frame: the sum of the stage times.
     pub frame_gpu_ms: Spread,
-    /// GPU time of the fog stages ([`FOG_STAGES`]) alone.
+    /// GPU time of the fog stages ([`is_fog_stage`]) alone.
     pub fog_gpu_ms: Spread,
     /// Host time from upload to readback (includes the readback and any stall).
     pub frame_host_ms: Spread,
@@ -304,7 +305,7 @@ impl Samples {
         self.fog_gpu_ms.push(
             s.stage_gpu_ms
                 .iter()
-                .filter(|t| FOG_STAGES.contains(&t.stage.as_str()))
+                .filter(|t| is_fog_stage(&t.stage))
                 .map(|t| t.gpu_ms)
                 .sum(),
         );

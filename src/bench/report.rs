@@ -5,6 +5,7 @@
 
 use super::{BenchPoint, BenchReport, Scenario};
 use crate::render::Mode;
+use crate::render::Stage;
 use crate::report::{plot, stacked_bars, Bar, BarGroup, Series, Table};
 use std::path::Path;
 
@@ -173,14 +174,15 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
             out.push(Check {
                 what: format!(
                     "{c}: fog stages only ({}) at {hi} viewers / reference's",
-                    super::FOG_STAGES.join(", ")
+                    super::fog_stage_list()
                 ),
                 value: ratio(p.fog_gpu_ms.median, reference.fog_gpu_ms.median),
                 bound: None,
             });
-            let grid_and_frustum = stage_ms(p, "grid_requests")
-                + stage_ms(p, "shared_grid")
-                + stage_ms(p, "shadow_frustum");
+            let grid_and_frustum = [Stage::GridRequests, Stage::SharedGrid, Stage::ShadowFrustum]
+                .into_iter()
+                .map(|s| stage_ms(p, s.name()))
+                .sum::<f64>();
             out.push(Check {
                 what: format!(
                     "{c}: frame at {hi} viewers / reference's if its grid and frustum stages took no time (the floor the other stages set)"
@@ -618,7 +620,7 @@ fn markdown(r: &BenchReport) -> String {
             voxels.to_markdown(),
             stage_table(r, path).to_markdown(),
             flip.to_markdown(),
-            fog_stages = super::FOG_STAGES.join(", "),
+            fog_stages = super::fog_stage_list(),
         );
         let checks = checks(r);
         if !checks.is_empty() {
