@@ -147,7 +147,7 @@ impl Runner {
                         .map(|s| s.gpu_ms)
                         .sum::<f64>()
                 };
-                fog_ms.push(sum(&|s| crate::bench::FOG_STAGES.contains(&s)));
+                fog_ms.push(sum(&crate::bench::is_fog_stage));
                 frame_ms.push(if out.stats.timestamps {
                     sum(&|_| true)
                 } else {
