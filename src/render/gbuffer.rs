@@ -210,16 +210,16 @@ impl GBuffer {
     }
 
     /// Records one render pass per viewer of `set` into its layer of the G-buffer
-    /// arrays; the set's raster views start at `first` in the uploaded list.
+    /// arrays; the set's raster views start at `set.first_view` in the uploaded list.
     pub(crate) fn add_passes(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
         scene: &SceneGpu,
         set: &ViewerSet,
-        first: usize,
         ts: &Timestamps,
     ) {
+        let first = set.first_view;
         let volumes = &set.vol;
         let views = &set.raster_views;
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {

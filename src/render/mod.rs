@@ -41,7 +41,6 @@ pub use world::{Lookup, World};
 use crate::gpu::{map_read, GpuContext};
 use crate::scene::{Bvh, Camera, Scene};
 use gpu_types::*;
-use shared_grid::RequestPhase;
 pub(crate) use stage::{dispatch, Timestamps};
 use std::collections::btree_map::Entry;
 use std::collections::BTreeMap;
@@ -343,74 +342,50 @@ impl Renderer {
         let (world, stages, sets, ts) =
             (&mut self.world, &self.stages, &self.sets, &self.timestamps);
         let ctx = world.ctx.clone();
-        let mut enc = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("frame"),
+        let mut f = FrameRecorder::new(&ctx, sets);
+        f.enc.clear_buffer(&world.gpu.counters, 0, None);
+        // The frame, top to bottom: one line per stage, for the world or every set.
+        f.each_set(Stage::GBuffer, |e, s| {
+            stages.gbuffer.add_passes(&ctx, e, &world.gpu, s, ts)
+        });
+        f.world(Stage::ShadowMaps, |e, _| {
+            world.add_shadow_maps(e, time_s, ts)
+        });
+        f.world(Stage::MediaTransmittance, |e, _| {
+            world.add_transmittance(e, &frame, ts)
+        });
+        let (grid, maps, cull) = (
+            world.grid(),
+            &world.shadow_maps,
+            frame.flags & FLAG_CULL != 0,
+        );
+        if let Some(grid) = grid {
+            let world_bg = &world.gpu.bind_group;
+            let cull = cull.then_some(&stages.cull);
+            f.world(Stage::GridRequests, |e, sets| {
+                grid.add_requests(&ctx, e, world_bg, sets, cull, ts)
             });
-        let mut ran = vec![Stage::GBuffer];
-        enc.clear_buffer(&world.gpu.counters, 0, None);
-        // The frame, top to bottom: each line one stage, for the world or every set.
-        let mut first = 0;
-        for set in sets.values() {
-            stages
-                .gbuffer
-                .add_passes(&ctx, &mut enc, &world.gpu, set, first, ts);
-            first += set.vol.count;
-        }
-        ran.extend(
-            world
-                .add_shadow_maps(&mut enc, time_s, ts)
-                .then_some(Stage::ShadowMaps),
-        );
-        ran.extend(
-            world
-                .add_transmittance(&mut enc, &frame, ts)
-                .then_some(Stage::MediaTransmittance),
-        );
-        if let Some(grid) = world.grid.as_ref().filter(|_| world.grid_in_use()) {
-            if grid.update().requests() {
-                grid.clear_requests(&mut enc);
-                if frame.flags & FLAG_CULL != 0 {
-                    sets.values()
-                        .for_each(|set| stages.cull.add_passes(&ctx, &mut enc, set, ts));
-                }
-                sets.values().for_each(|set| {
-                    grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Mark, ts)
-                });
-                grid.add_allocation(&ctx, &mut enc, &world.gpu.bind_group, ts);
-                sets.values().for_each(|set| {
-                    grid.add_request_pass(&ctx, &mut enc, set, RequestPhase::Voxels, ts)
-                });
-                ran.push(Stage::GridRequests);
-            }
-            grid.add_pass(&ctx, &mut enc, &world.gpu.bind_group, ts);
-            ran.push(Stage::SharedGrid);
+            f.world(Stage::SharedGrid, |e, _| {
+                grid.add_pass(&ctx, e, world_bg, ts)
+            });
             if frame.frustum_slices > 0 {
-                sets.values().for_each(|set| {
-                    stages
-                        .frustum
-                        .add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts)
+                f.each_set(Stage::ShadowFrustum, |e, s| {
+                    stages.frustum.add_pass(&ctx, e, s, maps, ts)
                 });
-                ran.push(Stage::ShadowFrustum);
             }
         }
         if world.has_media() {
-            sets.values().for_each(|set| {
-                stages
-                    .lighting
-                    .add_pass(&ctx, &mut enc, set, world.grid.as_ref(), ts)
+            f.each_set(Stage::FroxelLighting, |e, s| {
+                stages.lighting.add_pass(&ctx, e, s, grid, ts)
             });
-            sets.values()
-                .for_each(|set| stages.integration.add_pass(&ctx, &mut enc, set, ts));
-            ran.extend([Stage::FroxelLighting, Stage::VolumeIntegration]);
+            f.each_set(Stage::VolumeIntegration, |e, s| {
+                stages.integration.add_pass(&ctx, e, s, ts)
+            });
         }
-        sets.values().for_each(|set| {
-            stages
-                .composite
-                .add_pass(&ctx, &mut enc, set, &world.shadow_maps, ts)
+        f.each_set(Stage::Composite, |e, s| {
+            stages.composite.add_pass(&ctx, e, s, maps, ts)
         });
-        ran.push(Stage::Composite);
+        let (mut enc, ran) = (f.enc, f.ran);
         let readback = Readback::record(&ctx, &mut enc, world, sets, ts);
         ctx.submit(enc);
         let bytes = readback.map(&ctx)?;
@@ -431,12 +406,15 @@ impl Renderer {
         self.sets.retain(|size, _| by_size.contains_key(size));
         let w = &mut self.world;
         let clip = (w.scene.render.near_m, w.scene.render.far_m);
+        let mut first_view = 0;
         for (size, members) in &by_size {
             let set = match self.sets.entry(*size) {
                 Entry::Occupied(e) => e.into_mut(),
                 Entry::Vacant(e) => e.insert(ViewerSet::new(&w.ctx, &w.gpu, &w.settings, members)?),
             };
             set.prepare(&w.ctx, &w.gpu, &w.settings, members, clip, frame)?;
+            set.first_view = first_view;
+            first_view += set.vol.count;
         }
         let views: Vec<ViewGpu> = self
             .sets
@@ -489,6 +467,52 @@ impl Renderer {
         }
         self.world.frame_index = self.world.frame_index.wrapping_add(1);
         Ok(TargetsOutput { images, stats })
+    }
+}
+
+/// Records the frame's stages into one encoder, noting which ran.
+struct FrameRecorder<'a> {
+    enc: wgpu::CommandEncoder,
+    sets: &'a BTreeMap<(u32, u32), ViewerSet>,
+    ran: Vec<Stage>,
+}
+
+impl<'a> FrameRecorder<'a> {
+    fn new(ctx: &GpuContext, sets: &'a BTreeMap<(u32, u32), ViewerSet>) -> Self {
+        let enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("frame"),
+            });
+        FrameRecorder {
+            enc,
+            sets,
+            ran: Vec::new(),
+        }
+    }
+
+    /// Records a world stage once (`record` returns whether it had work).
+    fn world(
+        &mut self,
+        stage: Stage,
+        record: impl FnOnce(&mut wgpu::CommandEncoder, &[&ViewerSet]) -> bool,
+    ) {
+        let sets: Vec<&ViewerSet> = self.sets.values().collect();
+        if record(&mut self.enc, &sets) {
+            self.ran.push(stage);
+        }
+    }
+
+    /// Records a per-viewer stage for every viewer set.
+    fn each_set(
+        &mut self,
+        stage: Stage,
+        mut record: impl FnMut(&mut wgpu::CommandEncoder, &ViewerSet),
+    ) {
+        for set in self.sets.values() {
+            record(&mut self.enc, set);
+        }
+        self.ran.push(stage);
     }
 }
 

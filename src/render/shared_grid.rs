@@ -7,6 +7,7 @@
 //! top of either temporal caching. Storage is dense (the whole media box) or sparse:
 //! bricks of 8³ voxels allocated each frame where froxels read (paper §5.1).
 
+use super::froxel_cull::FroxelCull;
 use super::gpu_types::{FLAG_CACHE, FLAG_DEMAND, FLAG_SPARSE};
 use super::{dispatch, Settings, Stage, Timestamps, ViewerSet};
 use crate::gpu::GpuContext;
@@ -53,7 +54,7 @@ struct RequestPipelines {
 
 /// The two request passes of a viewer set (the sparse grid allocates bricks between).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum RequestPhase {
+enum RequestPhase {
     /// Voxels (dense) or bricks (sparse) the set's froxels read.
     Mark,
     /// Sparse: the voxels, inside the bricks that got a pool slot.
@@ -287,12 +288,37 @@ impl SharedShadowGrid {
         self.policy
     }
 
-    /// Clears last frame's requests (and brick table): before any set requests voxels.
-    pub(crate) fn clear_requests(&self, enc: &mut wgpu::CommandEncoder) {
+    /// Records the requests of every viewer set (demand-driven and sparse updates;
+    /// returns false for the frustum-gated update, which has none): last frame's
+    /// requests cleared, each set's hidden froxels culled (`cull`), each set's voxels (or
+    /// bricks) marked, the sparse pool allocated, then the sparse bricks' voxels marked.
+    pub(crate) fn add_requests(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        world: &wgpu::BindGroup,
+        sets: &[&ViewerSet],
+        cull: Option<&FroxelCull>,
+        ts: &Timestamps,
+    ) -> bool {
+        if !self.policy.requests() {
+            return false;
+        }
         enc.clear_buffer(&self.requests, 0, None);
         if self.policy.sparse() {
             enc.clear_buffer(&self.brick_table, 0, None);
         }
+        for set in sets {
+            if let Some(cull) = cull {
+                cull.add_passes(ctx, enc, set, ts);
+            }
+            self.add_request_pass(ctx, enc, set, RequestPhase::Mark, ts);
+        }
+        self.add_allocation(ctx, enc, world, ts);
+        for set in sets {
+            self.add_request_pass(ctx, enc, set, RequestPhase::Voxels, ts);
+        }
+        true
     }
 
     fn request_bind_group(&self, ctx: &GpuContext, column_limit: &wgpu::Buffer) -> wgpu::BindGroup {
@@ -311,7 +337,7 @@ impl SharedShadowGrid {
     /// Records one viewer set's requests: the voxels (dense) or bricks (sparse, first
     /// `phase`) and then, after [`Self::add_allocation`], the voxels of the allocated
     /// bricks (sparse, second `phase`). Nothing when no slice of the set reads the grid.
-    pub(crate) fn add_request_pass(
+    fn add_request_pass(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
@@ -342,7 +368,7 @@ impl SharedShadowGrid {
 
     /// Sparse grid: allocates pool slots to the requested bricks (world work, between
     /// the sets' two request phases).
-    pub(crate) fn add_allocation(
+    fn add_allocation(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
@@ -371,7 +397,7 @@ impl SharedShadowGrid {
         enc: &mut wgpu::CommandEncoder,
         world: &wgpu::BindGroup,
         ts: &Timestamps,
-    ) {
+    ) -> bool {
         enc.clear_buffer(&self.touched, 0, None);
         let bg = ctx.bind_buffers(
             "shared grid",
@@ -397,6 +423,7 @@ impl SharedShadowGrid {
             &[world, &bg],
             self.workgroups(),
         );
+        true
     }
 
     /// Bytes of every grid buffer (words or pool, touched bits, requests, validity,

@@ -44,6 +44,8 @@ pub(crate) struct ViewerSet {
     /// This frame's views, in slot order.
     pub(crate) gpu_views: Vec<ViewGpu>,
     pub(crate) raster_views: Vec<RasterView>,
+    /// Index of the set's first viewer among every set's viewers this frame.
+    pub(crate) first_view: usize,
     /// Where each target of this frame goes in `vol.output`.
     pub(crate) targets: Vec<TargetSlice>,
     ids: Vec<ViewerId>,
@@ -70,6 +72,7 @@ impl ViewerSet {
             views,
             gpu_views: Vec::new(),
             raster_views: Vec::new(),
+            first_view: 0,
             targets: Vec::new(),
             ids: Vec::new(),
             history: HashMap::new(),

@@ -117,9 +117,9 @@ impl World {
         !self.scene.media.is_empty()
     }
 
-    /// Whether froxels beyond the shadow frustum read the shared grid.
-    pub(crate) fn grid_in_use(&self) -> bool {
-        self.has_media() && self.grid.is_some()
+    /// The shared grid, when froxels read it this frame (media and lights in `shared`).
+    pub(crate) fn grid(&self) -> Option<&SharedShadowGrid> {
+        self.grid.as_ref().filter(|_| self.has_media())
     }
 
     /// Uploads what changed by scene time `time_s` — animated lights (marking those that
