@@ -77,12 +77,7 @@ impl Server {
         })
         .await
         .context("server start-up task")??;
-        let settings = Settings {
-            mode: config.mode,
-            voxel_size_m: config.voxel_size_m.unwrap_or(scene.render.voxel_size_m),
-            ..Settings::default()
-        };
-        settings.validate()?;
+        let settings = config.settings.apply(Settings::for_scene(&scene))?;
 
         let bind = SocketAddr::new(config.addr, config.port);
         let listener = tokio::net::TcpListener::bind(bind)
