@@ -23,6 +23,11 @@ pub enum Mode {
 }
 
 impl Mode {
+    /// Every mode.
+    pub fn all() -> impl Iterator<Item = Mode> {
+        <Mode as clap::ValueEnum>::value_variants().iter().copied()
+    }
+
     /// The mode's name in flags, config files, variants and reports.
     pub fn name(self) -> &'static str {
         match self {
@@ -213,6 +218,7 @@ struct Setting {
     placeholder: fn() -> String,
     /// The value of a flag given without one (`--parity` is `--parity on`).
     bare: Option<&'static str>,
+    /// The value's text, as `set` reads it.
     get: fn(&Settings) -> String,
     /// Reads a value; `None` when the text is not one.
     set: fn(&mut Settings, &str) -> Option<()>,
@@ -312,13 +318,6 @@ impl Value for Mode {
     }
     fn text(&self) -> String {
         self.name().into()
-    }
-}
-
-impl Mode {
-    /// Every mode.
-    pub fn all() -> impl Iterator<Item = Mode> {
-        <Mode as clap::ValueEnum>::value_variants().iter().copied()
     }
 }
 
