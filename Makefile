@@ -41,13 +41,13 @@ FOGCAST_DEV := ./target/debug/fogcast
 # shadow maps); `paper` is paper 000's method as published (frustum-gated grid traced
 # every frame, surface shadow rays); `gated` is the paper's grid update with the maps
 # (the same picture as `shared`) and `demand` adds the demand-driven update to it.
-PAPER := --variant 'paper:demand=off,cache=off,map=0' --variant 'gated:demand=off,cache=off' --variant 'demand:cache=off'
+PAPER := --variant 'paper:demand=off,cache=off,shadow_map_px=0' --variant 'gated:demand=off,cache=off' --variant 'demand:cache=off'
 
 bench: deps-runtime
 	$(CARGO) build
-	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel=0.5' --variant 'fine:voxel=0.125' --overlap 10,25,50,75,100 $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel_size_m=0.5' --variant 'fine:voxel_size_m=0.125' --overlap 10,25,50,75,100 $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene street --variant 'paper:demand=off,cache=off,map=0' $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene street --variant 'paper:demand=off,cache=off,shadow_map_px=0' $(BENCH_ARGS)
 
 test: deps
 	$(CARGO) test -- --test-threads=1

@@ -164,35 +164,18 @@ impl Runner {
     }
 }
 
-fn variant_name(s: &Settings) -> String {
-    let curve = if s.depth_curve != Settings::default().depth_curve {
-        format!(" depth-curve {}", s.depth_curve)
+/// A variant's name: its mode, then its settings that differ from `base` as
+/// `key=value,…`, the spelling of flags, config files and bench variants.
+fn variant_name(s: &Settings, base: &Settings) -> String {
+    let changes = s.changes_from(&Settings {
+        mode: s.mode,
+        ..*base
+    });
+    if changes.is_empty() {
+        s.mode.name().into()
     } else {
-        String::new()
-    };
-    let transmittance = match s.transmittance_voxel_m {
-        t if t == Settings::default().transmittance_voxel_m => String::new(),
-        0.0 => " T-marched".into(),
-        t => format!(" T-{t}m"),
-    };
-    let name = match s.mode {
-        Mode::Reference => "reference".into(),
-        Mode::Shared => format!(
-            "shared {}m {}{}{}{}{}{}{transmittance}",
-            s.voxel_size_m,
-            if s.trilinear { "trilinear" } else { "nearest" },
-            if s.parity { " parity" } else { "" },
-            if s.frustum_slice_fraction > 0.0 {
-                ""
-            } else {
-                " no-frustum"
-            },
-            if s.demand { " demand" } else { "" },
-            if s.cache { " cache" } else { "" },
-            if s.shadow_map_px > 0 { " map" } else { "" },
-        ),
-    };
-    name + &curve
+        format!("{} {changes}", s.mode.name())
+    }
 }
 
 /// Runs the whole evaluation and writes `eval.md`, `eval.csv`, `eval.json` and plots.
@@ -321,7 +304,7 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
     }
     let mut reference_images: Option<Vec<Vec<u8>>> = None;
     for (i, settings) in variants.iter().enumerate() {
-        let name = variant_name(settings);
+        let name = variant_name(settings, &base);
         progress(&format!("[{}/{}] {name}", i + 1, variants.len()));
         let (out, fog_ms, frame_ms) = match runner.run(&runner.scene, *settings) {
             Ok(r) => r,
@@ -376,6 +359,7 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
     write_report(
         &cfg,
         &scene,
+        &base,
         &rows,
         truth_ms,
         truth_counts.media_rays + truth_counts.surface_rays,
@@ -386,6 +370,7 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
 fn write_report(
     cfg: &EvalConfig,
     scene: &Scene,
+    base: &Settings,
     rows: &[EvalRow],
     truth_ms: f64,
     truth_rays: u64,
@@ -426,7 +411,12 @@ fn write_report(
     let md = format!(
         "# eval: {scene}\n\n`{cmd}`\n\n{n} viewer(s) at {w}×{h}, evaluated frame at t = {t:.2} s after {f} walk-in frame(s); \
          truth: {steps} steps and {spp} ray(s)/pixel, {truth_rays} shadow rays, {truth_s:.1} s on the CPU. Times are GPU timestamps \
-         (median over the walk-in frames after the first) on `{adapter}`.\n\n{table}",
+         (median over the walk-in frames after the first) on `{adapter}`.\n\n\
+         A variant is its mode and its settings that differ from the paper's method as published \
+         (`{paper}` over `shared`'s defaults, {voxel} m voxels), as config files and bench \
+         variants key them (flags: `--` and the key with `-` for `_`).\n\n{table}",
+        paper = base.changes_from(&Settings::for_scene(scene)),
+        voxel = base.voxel_size_m,
         scene = scene.name,
         cmd = cfg.command,
         n = cfg.viewers,
@@ -442,20 +432,19 @@ fn write_report(
     );
     std::fs::write(cfg.out.join("eval.md"), md)?;
 
+    // A colour per combination of the sweep's lookup, parity and shadow frustum; the
+    // other settings' variants share their combination's colour.
     let group = |r: &EvalRow| -> String {
-        match r.settings {
-            Some(s) if s.mode == Mode::Shared => format!(
-                "shared {}{}{}",
-                if s.trilinear { "trilinear" } else { "nearest" },
-                if s.parity { "+parity" } else { "" },
-                if s.frustum_slice_fraction > 0.0 {
-                    ""
-                } else {
-                    ", no frustum"
-                }
-            ),
-            _ => "reference".into(),
-        }
+        r.settings.map_or(r.variant.clone(), |s| {
+            let swept = Settings {
+                mode: s.mode,
+                trilinear: s.trilinear,
+                parity: s.parity,
+                frustum_slice_fraction: s.frustum_slice_fraction,
+                ..*base
+            };
+            variant_name(&swept, base)
+        })
     };
     let mut groups: Vec<String> = rows.iter().map(group).collect();
     groups.dedup();

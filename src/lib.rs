@@ -9,6 +9,7 @@
 //! - [`bench`]: `fogcast bench`, how each cost grows with the number of viewers.
 //! - [`metrics`]: image error (FLIP, PSNR, RMSE).
 //! - [`server`]: `fogcast serve`, streaming every viewer's frames to browsers over WebSocket.
+//! - [`settings_overrides`]: renderer settings given by flags or a config file's keys.
 //! - [`truth`]: the CPU ground-truth renderer every error is measured against.
 
 #![deny(missing_docs)]
@@ -25,4 +26,5 @@ pub mod render;
 pub mod report;
 pub mod scene;
 pub mod server;
+pub mod settings_overrides;
 pub mod truth;

@@ -7,6 +7,7 @@ use clap::{Args, Parser, Subcommand};
 use fogcast::gpu::GpuContext;
 use fogcast::render::{Mode, Renderer, Settings};
 use fogcast::scene::{Bvh, Scene};
+use fogcast::settings_overrides::SettingsOverrides;
 use fogcast::truth::{render_truth, TruthSettings};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -78,11 +79,12 @@ struct EvalArgs {
     out: PathBuf,
 }
 
-/// Paper 000's parameters (defaults: the paper's, with trilinear lookup).
+/// The renderer's settings: `--mode` (which adds the CPU ground truth) and a flag per
+/// setting of `Settings`.
 #[derive(Args, Clone)]
 struct SettingsArgs {
     /// Rendering mode: the paper's baseline, the paper's method, or the CPU ground truth.
-    #[arg(long, value_enum, default_value = "shared")]
+    #[arg(long, value_enum, default_value_t = Settings::default().mode.into())]
     mode: ModeArg,
     /// Ray-march segments per pixel of mode `truth`.
     #[arg(long, default_value_t = TruthSettings::default().steps)]
@@ -90,58 +92,8 @@ struct SettingsArgs {
     /// Primary rays per pixel of mode `truth`, stratified over the pixel and averaged.
     #[arg(long, default_value_t = TruthSettings::default().spp)]
     truth_spp: u32,
-    /// Shared grid voxel size in metres (default: the scene's).
-    #[arg(long)]
-    voxel_size: Option<f32>,
-    /// Pixels per froxel of the lighting volume.
-    #[arg(long, default_value_t = 8)]
-    froxel_px: u32,
-    /// Depth slices of the lighting volume.
-    #[arg(long, default_value_t = 128)]
-    slices: u32,
-    /// Pixels per froxel of the per-viewer shadow frustum.
-    #[arg(long, default_value_t = 16)]
-    frustum_px: u32,
-    /// Fraction of the depth slices covered by the shadow frustum (0 disables it).
-    #[arg(long, default_value_t = 1.0 / 3.0)]
-    frustum_fraction: f32,
-    /// Update only half the grid per frame (alternating z parity).
-    #[arg(long)]
-    parity: bool,
-    /// Grid lookup: nearest voxel or 8-voxel trilinear.
-    #[arg(long, value_enum, default_value = "trilinear")]
-    lookup: Lookup,
-    /// Temporal jitter + reprojection.
-    #[arg(long)]
-    temporal: bool,
-    /// Curvature of the exponential depth-slice distribution (larger: more slices near the eye).
-    #[arg(long, default_value_t = Settings::default().depth_curve)]
-    depth_curve: f32,
-    /// Demand-driven grid update: trace only the voxels some visible froxel reads
-    /// (`--demand false`: the paper's frustum-gated update).
-    #[arg(long, default_value_t = Settings::default().demand, action = clap::ArgAction::Set)]
-    demand: bool,
-    /// Temporal shadow caching: keep voxels' light bits until the light or an occluder
-    /// moves (`--cache false`: re-trace every frame, as the paper does).
-    #[arg(long, default_value_t = Settings::default().cache, action = clap::ArgAction::Set)]
-    cache: bool,
-    /// Sparse grid: bricks of 8³ voxels allocated where froxels read, from a pool of
-    /// this many bricks (0: dense grid over the whole media box). Implies --demand.
-    #[arg(long, default_value_t = 0)]
-    brick_pool: u32,
-    /// Shadows of directional lights on surfaces and in the near-field fog from one
-    /// shared shadow map of N² texels (mode shared; 0: a ray per pixel or frustum froxel
-    /// and light, like reference).
-    #[arg(long, default_value_t = Settings::default().shadow_map_px)]
-    shadow_map: u32,
-    /// Node spacing in metres of the shared volumes of media transmittance toward each
-    /// light (mode shared; 0: every froxel and pixel marches its shadow ray through the
-    /// media, like reference).
-    #[arg(long, default_value_t = Settings::default().transmittance_voxel_m)]
-    transmittance_voxel: f32,
-    /// Quadrature step in metres of a shadow ray through height and noisy media.
-    #[arg(long, default_value_t = Settings::default().media_step_m)]
-    media_step: f32,
+    #[command(flatten)]
+    given: SettingsOverrides,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -151,36 +103,34 @@ enum ModeArg {
     Truth,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum Lookup {
-    Nearest,
-    Trilinear,
+impl From<Mode> for ModeArg {
+    fn from(mode: Mode) -> Self {
+        match mode {
+            Mode::Reference => ModeArg::Reference,
+            Mode::Shared => ModeArg::Shared,
+        }
+    }
+}
+
+impl ModeArg {
+    /// The renderer's mode (none for `truth`).
+    fn renderer(self) -> Option<Mode> {
+        match self {
+            ModeArg::Reference => Some(Mode::Reference),
+            ModeArg::Shared => Some(Mode::Shared),
+            ModeArg::Truth => None,
+        }
+    }
 }
 
 impl SettingsArgs {
-    fn settings(&self, scene: &Scene) -> Settings {
-        Settings {
-            mode: if self.mode == ModeArg::Reference {
-                Mode::Reference
-            } else {
-                Mode::Shared
-            },
-            voxel_size_m: self.voxel_size.unwrap_or(scene.render.voxel_size_m),
-            froxel_px: self.froxel_px,
-            slices: self.slices,
-            frustum_px: self.frustum_px,
-            frustum_slice_fraction: self.frustum_fraction,
-            parity: self.parity,
-            trilinear: matches!(self.lookup, Lookup::Trilinear),
-            temporal: self.temporal,
-            depth_curve: self.depth_curve,
-            demand: self.demand,
-            cache: self.cache,
-            brick_pool: self.brick_pool,
-            shadow_map_px: self.shadow_map,
-            transmittance_voxel_m: self.transmittance_voxel,
-            media_step_m: self.media_step,
+    /// The scene's starting settings with the flags given.
+    fn settings(&self, scene: &Scene) -> anyhow::Result<Settings> {
+        let mut given = self.given.clone();
+        if let Some(mode) = self.mode.renderer() {
+            given.set("mode", mode.name())?;
         }
+        given.apply(Settings::for_scene(scene))
     }
 }
 
@@ -251,7 +201,7 @@ fn render(a: RenderArgs) -> anyhow::Result<()> {
     if a.settings.mode == ModeArg::Truth {
         return render_truth_frames(&a, &scene);
     }
-    let settings = a.settings.settings(&scene);
+    let settings = a.settings.settings(&scene)?;
     let ctx = Arc::new(GpuContext::new()?);
     let mut renderer = Renderer::new(ctx, scene.clone(), settings)?;
     let dt = 1.0 / 30.0;
@@ -391,4 +341,44 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         a.out.join("eval.md").display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory as _;
+
+    #[test]
+    fn flags_are_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn render_without_flags_renders_the_scenes_settings() {
+        let scene = Scene::load("street").unwrap();
+        let settings = |args: &[&str]| {
+            let cli = Cli::try_parse_from(["fogcast", "render"].iter().chain(args)).unwrap();
+            let Command::Render(a) = cli.command else {
+                unreachable!("parsed render")
+            };
+            a.settings.settings(&scene).unwrap()
+        };
+        assert_eq!(settings(&[]), Settings::for_scene(&scene));
+        let mut expected = Settings::for_scene(&scene);
+        expected
+            .set_all("mode=reference,voxel_size_m=0.5,trilinear=off,parity=on")
+            .unwrap();
+        assert_eq!(
+            settings(&[
+                "--mode",
+                "reference",
+                "--voxel-size",
+                "0.5",
+                "--lookup",
+                "nearest",
+                "--parity"
+            ]),
+            expected
+        );
+    }
 }

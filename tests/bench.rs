@@ -50,7 +50,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         // `shared` with its defaults, and the paper's method as published.
         configs: configurations(
             &[Mode::Reference, Mode::Shared],
-            &["paper:demand=off,cache=off,map=0".to_string()],
+            &["paper:demand=off,cache=off,shadow_map_px=0".to_string()],
             VOXEL_SIZE_M,
         )
         .unwrap(),

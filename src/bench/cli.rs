@@ -1,7 +1,7 @@
 //! `fogcast bench` flags and the progress bar.
 
 use super::{configurations, BenchConfig, Progress};
-use crate::render::Mode;
+use crate::render::{Mode, Settings};
 use crate::scene::Scene;
 use std::io::{IsTerminal as _, Write as _};
 use std::path::{Path, PathBuf};
@@ -23,10 +23,9 @@ pub struct BenchArgs {
         default_value = "reference,shared"
     )]
     pub modes: Vec<Mode>,
-    /// A further `shared` configuration, `name:key=value,…` (keys: mode, voxel, lookup,
-    /// parity, frustum, frustum_px, froxel_px, slices, temporal, depth_curve); repeatable.
-    /// Example: --variant 'paper-fast:voxel=0.5,lookup=nearest,parity=on'.
-    #[arg(long = "variant")]
+    /// A further `shared` configuration, `name:key=value,…` over its defaults, keyed as
+    /// the settings' flags are named (without `--`, `_` for `-`); repeatable.
+    #[arg(long = "variant", long_help = variant_help())]
     pub variants: Vec<String>,
     /// Viewer width in pixels.
     #[arg(long, default_value_t = 320)]
@@ -57,6 +56,16 @@ pub struct BenchArgs {
     /// `bench.json` in this folder.
     #[arg(long, value_name = "DIR", conflicts_with = "out")]
     pub replot: Option<PathBuf>,
+}
+
+fn variant_help() -> String {
+    let keys: Vec<&str> = Settings::keys().collect();
+    format!(
+        "A further `shared` configuration, `name:key=value,…` over its defaults; repeatable.\n\
+         Keys: {}.\n\
+         Example: --variant 'paper-fast:voxel_size_m=0.5,trilinear=off,parity=on'.",
+        keys.join(", ")
+    )
 }
 
 impl BenchArgs {

@@ -4,8 +4,7 @@
 //! and `overlap_rays_<config>.png` per configuration compared with `reference`).
 
 use super::{BenchPoint, BenchReport, Scenario};
-use crate::render::Mode;
-use crate::render::Stage;
+use crate::render::{Settings, Stage};
 use crate::report::{plot, stacked_bars, Bar, BarGroup, Series, Table};
 use std::path::Path;
 
@@ -293,7 +292,7 @@ fn csv(r: &BenchReport) -> Table {
             overlap,
             p.viewers.to_string(),
             p.config.clone(),
-            mode_name(p.mode).into(),
+            p.mode.name().into(),
             p.frames.to_string(),
             format!("{:.3}", p.frame_gpu_ms.median),
             format!("{:.3}", p.frame_gpu_ms.min),
@@ -325,13 +324,6 @@ fn csv(r: &BenchReport) -> Table {
         t.push(row);
     }
     t
-}
-
-fn mode_name(m: Mode) -> &'static str {
-    match m {
-        Mode::Reference => "reference",
-        Mode::Shared => "shared",
-    }
 }
 
 /// A value of a point relative to the `reference` point beside it.
@@ -379,17 +371,12 @@ fn configs_table(r: &BenchReport) -> Table {
     let mut t = Table::new(&[
         "tag",
         "configuration",
-        "mode",
         "voxel m",
         "grid",
-        "lookup",
-        "parity",
-        "froxel px × slices",
-        "shadow frustum",
+        "settings (over `shared`'s defaults)",
     ]);
     for c in &r.configs {
         let s = &c.settings;
-        let shared = s.mode == Mode::Shared;
         let grid = r
             .points
             .iter()
@@ -397,25 +384,21 @@ fn configs_table(r: &BenchReport) -> Table {
             .map(|p| p.grid_dims)
             .filter(|d| d[0] > 0)
             .map_or("–".into(), |[x, y, z]| format!("{x}×{y}×{z}"));
-        let on_shared = |text: String| if shared { text } else { "–".into() };
+        let defaults = Settings {
+            voxel_size_m: s.voxel_size_m,
+            ..Settings::default()
+        };
+        let changes = s.changes_from(&defaults);
         t.push(vec![
             tag(r, &c.name),
             c.name.clone(),
-            mode_name(s.mode).into(),
-            on_shared(format!("{}", s.voxel_size_m)),
+            format!("{}", s.voxel_size_m),
             grid,
-            on_shared(if s.trilinear { "trilinear" } else { "nearest" }.into()),
-            on_shared(if s.parity { "on" } else { "off" }.into()),
-            format!("{} × {}", s.froxel_px, s.slices),
-            on_shared(if s.frustum_slice_fraction > 0.0 {
-                format!(
-                    "{} px, {:.0} % of slices",
-                    s.frustum_px,
-                    s.frustum_slice_fraction * 100.0
-                )
+            if changes.is_empty() {
+                "–".into()
             } else {
-                "off".into()
-            }),
+                format!("`{changes}`")
+            },
         ]);
     }
     t

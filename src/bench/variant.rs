@@ -13,58 +13,16 @@ pub struct BenchVariant {
     pub settings: Settings,
 }
 
-/// Keys of a `--variant` string, with what each takes (shown in errors).
-const KEYS: [(&str, &str); 16] = [
-    ("mode", "reference|shared"),
-    ("voxel", "grid voxel edge in metres, e.g. 0.5"),
-    ("lookup", "nearest|trilinear"),
-    ("parity", "on|off"),
-    (
-        "frustum",
-        "fraction of the slices in the shadow frustum, 0..=1",
-    ),
-    ("frustum_px", "pixels per shadow-frustum froxel"),
-    ("froxel_px", "pixels per lighting froxel"),
-    ("slices", "depth slices"),
-    ("temporal", "on|off"),
-    ("depth_curve", "curvature of the depth-slice distribution"),
-    ("demand", "on|off: trace only the voxels froxels read"),
-    (
-        "cache",
-        "on|off: keep voxels' light bits until something moves",
-    ),
-    ("pool", "sparse grid: bricks in the pool (0: dense)"),
-    (
-        "map",
-        "surface shadow map texels a side for directional lights (0: rays)",
-    ),
-    (
-        "tvoxel",
-        "node spacing of the shared media transmittance volumes in metres (0: march per sample)",
-    ),
-    (
-        "media_step",
-        "shadow-ray quadrature step through media, metres",
-    ),
-];
-
 /// The configurations for `modes`, in that order: each starts from the paper's
 /// defaults with the scene's voxel size.
 pub fn mode_variants(modes: &[Mode], scene_voxel_size_m: f32) -> Vec<BenchVariant> {
     modes
         .iter()
         .map(|&mode| BenchVariant {
-            name: mode_name(mode).to_string(),
+            name: mode.name().to_string(),
             settings: base_settings(mode, scene_voxel_size_m),
         })
         .collect()
-}
-
-fn mode_name(mode: Mode) -> &'static str {
-    match mode {
-        Mode::Reference => "reference",
-        Mode::Shared => "shared",
-    }
 }
 
 fn base_settings(mode: Mode, scene_voxel_size_m: f32) -> Settings {
@@ -84,78 +42,27 @@ fn base_settings(mode: Mode, scene_voxel_size_m: f32) -> Settings {
     }
 }
 
-/// Parses `name:key=value,key=value` (keys: mode, voxel, lookup, parity, frustum,
-/// frustum_px, froxel_px, slices, temporal, depth_curve) over the `shared` defaults with
-/// the scene's voxel size. Errors quote the whole `--variant` value and name the key.
+/// Parses `name:key=value,…` (the keys of `Settings`, as config files and flags name
+/// them) over the `shared` defaults with the scene's voxel size. Errors quote the whole
+/// `--variant` value and name the key.
 pub fn parse_variant(spec: &str, scene_voxel_size_m: f32) -> anyhow::Result<BenchVariant> {
     let fail = |why: String| anyhow::anyhow!("--variant '{spec}': {why}");
     let (name, body) = spec.split_once(':').unwrap_or((spec, ""));
     let name = name.trim();
     if name.is_empty() {
         return Err(fail(
-            "needs a name before ':' (e.g. 'coarse:voxel=0.5')".into(),
+            "needs a name before ':' (e.g. 'coarse:voxel_size_m=0.5')".into(),
         ));
     }
-    if name == "reference" || name == "shared" {
+    if Mode::all().any(|m| m.name() == name) {
         return Err(fail(format!(
             "the name '{name}' is taken by a mode; pick another"
         )));
     }
     let mut s = base_settings(Mode::Shared, scene_voxel_size_m);
-    for pair in body.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let (key, value) = pair
-            .split_once('=')
-            .map(|(k, v)| (k.trim(), v.trim()))
-            .ok_or_else(|| fail(format!("'{pair}' is not key=value")))?;
-        let expects = KEYS.iter().find(|(k, _)| *k == key).map(|(_, e)| *e);
-        let Some(expects) = expects else {
-            let keys: Vec<&str> = KEYS.iter().map(|(k, _)| *k).collect();
-            return Err(fail(format!(
-                "unknown key '{key}' (keys: {})",
-                keys.join(", ")
-            )));
-        };
-        let bad = || fail(format!("{key}={value}: expected {expects}"));
-        let number = || value.parse::<f32>().ok().filter(|v| v.is_finite());
-        let count = || value.parse::<u32>().ok();
-        let switch = || match value {
-            "on" | "true" | "yes" => Some(true),
-            "off" | "false" | "no" => Some(false),
-            _ => None,
-        };
-        match key {
-            "mode" => {
-                s.mode = match value {
-                    "reference" => Mode::Reference,
-                    "shared" => Mode::Shared,
-                    _ => return Err(bad()),
-                }
-            }
-            "voxel" => s.voxel_size_m = number().ok_or_else(bad)?,
-            "lookup" => {
-                s.trilinear = match value {
-                    "nearest" => false,
-                    "trilinear" => true,
-                    _ => return Err(bad()),
-                }
-            }
-            "parity" => s.parity = switch().ok_or_else(bad)?,
-            "frustum" => s.frustum_slice_fraction = number().ok_or_else(bad)?,
-            "frustum_px" => s.frustum_px = count().ok_or_else(bad)?,
-            "froxel_px" => s.froxel_px = count().ok_or_else(bad)?,
-            "slices" => s.slices = count().ok_or_else(bad)?,
-            "temporal" => s.temporal = switch().ok_or_else(bad)?,
-            "depth_curve" => s.depth_curve = number().ok_or_else(bad)?,
-            "demand" => s.demand = switch().ok_or_else(bad)?,
-            "cache" => s.cache = switch().ok_or_else(bad)?,
-            "pool" => s.brick_pool = count().ok_or_else(bad)?,
-            "map" => s.shadow_map_px = count().ok_or_else(bad)?,
-            "tvoxel" => s.transmittance_voxel_m = number().ok_or_else(bad)?,
-            "media_step" => s.media_step_m = number().ok_or_else(bad)?,
-            _ => unreachable!("every key of KEYS is matched"),
-        }
-    }
-    s.validate().map_err(|e| fail(format!("{e:#}")))?;
+    s.set_all(body)
+        .and_then(|()| s.validate())
+        .map_err(|e| fail(format!("{e:#}")))?;
     Ok(BenchVariant {
         name: name.to_string(),
         settings: s,
@@ -180,11 +87,7 @@ pub fn configurations(
     }
     let mut seen = Vec::new();
     for m in modes {
-        anyhow::ensure!(
-            !seen.contains(m),
-            "--modes: '{}' is given twice",
-            mode_name(*m)
-        );
+        anyhow::ensure!(!seen.contains(m), "--modes: '{}' is given twice", m.name());
         seen.push(*m);
     }
     anyhow::ensure!(
@@ -218,7 +121,11 @@ mod tests {
     fn bad_variants_name_the_key_and_value() {
         for (spec, needle) in [
             ("x:voxel=abc", "voxel=abc"),
-            ("x:voxel=0.001", "voxel size 0.001"),
+            (
+                "x:voxel=0.001",
+                "voxel_size_m=0.001: must be at least 0.01 m",
+            ),
+            ("x:tvoxel=-1", "transmittance_voxel_m=-1: must be 0"),
             ("x:lookup=cubic", "lookup=cubic: expected nearest|trilinear"),
             ("x:speed=3", "unknown key 'speed'"),
             ("x:parity", "'parity' is not key=value"),

@@ -1,6 +1,15 @@
 //! Every setting of the renderer (paper 000's parameters and what fogcast adds), with
-//! its default and its valid range.
+//! its default, its valid range and its names.
+//!
+//! The `settings!` list below defines each setting once: its field, documentation,
+//! default and the keys it had before. Every place a user names a setting derives from
+//! it: the field's name is the key of a server config file and of a `fogcast bench
+//! --variant`, the name in JSON reports, and (kebab-case, after `--`) the flag of
+//! `fogcast render` and `serve`; `fogcast eval` names its variants by the same
+//! `key=value`s. Older keys stay readable everywhere.
 
+use crate::scene::Scene;
+use anyhow::{anyhow, bail};
 use serde::{Deserialize, Serialize};
 
 /// How shadows in the fog are computed.
@@ -13,70 +22,178 @@ pub enum Mode {
     Shared,
 }
 
-/// Every parameter of paper 000, with its defaults.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Settings {
-    /// Rendering mode.
-    pub mode: Mode,
+impl Mode {
+    /// Every mode.
+    pub fn all() -> impl Iterator<Item = Mode> {
+        <Mode as clap::ValueEnum>::value_variants().iter().copied()
+    }
+
+    /// The mode's name in flags, config files, variants and reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Reference => "reference",
+            Mode::Shared => "shared",
+        }
+    }
+}
+
+/// `Some` of the literal, if one is given.
+macro_rules! some {
+    () => {
+        None
+    };
+    ($value:literal) => {
+        Some($value)
+    };
+}
+
+/// Defines `Settings`, its `Default` and `SETTINGS`, the table every name of a setting
+/// is read from. Per setting: its documentation (the first paragraph is the flag's
+/// help), serde attributes, `#[cli_default = "…"]` where commands start from something
+/// else than the default (shown in the flag's help), `field: type = default`, and
+/// `was "old_key" { "old value" => "value", … }, …` for keys it had before.
+macro_rules! settings {
+    ($(
+        $(#[doc = $doc:literal])+
+        $(#[serde($($serde:tt)+)])?
+        $(#[cli_default = $cli_default:literal])?
+        $field:ident: $ty:ty = $default:expr
+        $(, was $($old:literal $({ $($old_value:literal => $value:literal),+ })?),+)?;
+    )+) => {
+        /// Every parameter of paper 000 and of what fogcast adds, with its default.
+        #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+        pub struct Settings {
+            $(
+                $(#[doc = $doc])+
+                $(#[serde($($serde)+)])?
+                pub $field: $ty,
+            )+
+        }
+
+        impl Default for Settings {
+            fn default() -> Self {
+                Settings {
+                    $($field: $default,)+
+                }
+            }
+        }
+
+        /// Every setting, in the order of the fields.
+        const SETTINGS: &[Setting] = &[$(
+            Setting {
+                key: stringify!($field),
+                doc: concat!($($doc, "\n"),+),
+                cli_default: some!($($cli_default)?),
+                was: &[$($(OldKey {
+                    key: $old,
+                    values: &[$($(($old_value, $value)),+)?],
+                }),+)?],
+                takes: <$ty as Value>::takes,
+                placeholder: <$ty as Value>::placeholder,
+                bare: <$ty as Value>::BARE,
+                get: |s| Value::text(&s.$field),
+                set: |s, text| {
+                    s.$field = Value::parse(text)?;
+                    Some(())
+                },
+            },
+        )+];
+    };
+}
+
+settings! {
+    /// Rendering mode: `reference` (the paper's baseline) or `shared` (its method).
+    mode: Mode = Mode::Shared;
+
     /// Shared grid voxel edge, metres.
-    pub voxel_size_m: f32,
+    #[cli_default = "the scene's"]
+    voxel_size_m: f32 = 0.25, was "voxel", "voxel_size";
+
     /// Pixels per froxel of the lighting volume (8 in the paper).
-    pub froxel_px: u32,
+    froxel_px: u32 = 8;
+
     /// Depth slices of the lighting volume (128 in the paper).
-    pub slices: u32,
-    /// Pixels per froxel of the shadow frustum (16 in the paper).
-    pub frustum_px: u32,
-    /// Fraction of the slices covered by the shadow frustum (1/3 in the paper; 0 = off).
-    pub frustum_slice_fraction: f32,
+    slices: u32 = 128;
+
+    /// Pixels per froxel of the per-viewer shadow frustum (16 in the paper).
+    frustum_px: u32 = 16;
+
+    /// Fraction of the depth slices the shadow frustum covers (1/3 in the paper; 0: none).
+    frustum_slice_fraction: f32 = 1.0 / 3.0, was "frustum", "frustum_fraction";
+
     /// Alternate z-parity grid updates (half the grid per frame).
-    pub parity: bool,
-    /// 8-voxel trilinear grid lookup instead of the nearest voxel.
-    pub trilinear: bool,
+    parity: bool = false;
+
+    /// 8-voxel trilinear grid lookup (off: the nearest voxel).
+    trilinear: bool = true, was "lookup" { "nearest" => "off", "trilinear" => "on" };
+
     /// Temporal jitter along view rays + reprojection of last frame's froxels.
-    pub temporal: bool,
-    /// Curvature k of the depth-slice distribution
+    temporal: bool = false;
+
+    /// Curvature k of the depth-slice distribution (larger: more slices near the eye).
+    ///
     /// `z = near + (far − near)·(e^{k·s/N} − 1)/(e^k − 1)`: large k crowds slices at the
     /// eye (k = ln(far/near) ≈ the pure exponential near·(far/near)^{s/N}), small k
     /// tends to linear. With near 0.1 m and far 40 m the pure exponential puts the
     /// first third of the slices (the shadow frustum's) within 0.75 m of the eye; the
     /// default 4 reaches 2 m there and is measured in `docs/accuracy.md`.
-    pub depth_curve: f32,
-    /// Demand-driven grid update (beyond the paper): trace only the voxels that some
-    /// froxel's lookup will read, instead of every voxel inside some frustum; froxels
-    /// hidden behind the depth buffer are neither lit nor read. On by default.
+    depth_curve: f32 = 4.0;
+
+    /// Demand-driven grid update: trace only the voxels some visible froxel reads
+    /// (beyond the paper; off: its frustum-gated update).
+    ///
+    /// Instead of every voxel inside some frustum; froxels hidden behind the depth
+    /// buffer are neither lit nor read. On by default, as `fogcast bench` shows it wins
+    /// (docs/performance.md).
+    // Reports from before a setting existed read it as off (`serde(default)`).
     #[serde(default)]
-    pub demand: bool,
-    /// Temporal shadow caching (beyond the paper): a voxel's light bit stays valid
-    /// until that light changes or a mover's swept bounds cross its shadow ray, so a
-    /// static scene traces each voxel once. On by default; no effect on a sparse grid
-    /// (its bricks are allocated afresh every frame).
+    demand: bool = true;
+
+    /// Temporal shadow caching: keep a voxel's light bits until the light or an
+    /// occluder moves (beyond the paper; off: re-trace every frame).
+    ///
+    /// A voxel's bit stays valid until that light changes or a mover's swept bounds
+    /// cross its shadow ray, so a static scene traces each voxel once. On by default, as
+    /// `fogcast bench` shows it wins; no effect on a sparse grid (its bricks are
+    /// allocated afresh every frame).
     #[serde(default)]
-    pub cache: bool,
-    /// Sparse grid (paper 000 §5.1, beyond its implementation): bricks of 8³ voxels
-    /// allocated each frame where froxels read, from a pool of this many bricks
-    /// (0: a dense grid over the whole media box). Implies `demand`; not with `cache`.
+    cache: bool = true;
+
+    /// Sparse grid: bricks of 8³ voxels allocated each frame where froxels read, from a
+    /// pool of this many bricks (0: a dense grid over the whole media box).
+    ///
+    /// Paper 000 §5.1, beyond its implementation. Implies `demand`; not with `cache`.
     /// A froxel whose brick did not fit in the pool traces its own rays.
     #[serde(default)]
-    pub brick_pool: u32,
-    /// Shadows of directional lights on surfaces and in the near-field fog (the shadow
-    /// frustum) from a shared shadow map of this many texels a side, rendered once for
-    /// all viewers and only when a light or mover changed (beyond the paper; `shared`
-    /// only; default 4096). 0: a shadow ray per pixel or frustum froxel and light, as
-    /// `reference` always does.
+    brick_pool: u32 = 0, was "pool";
+
+    /// Shadows of directional lights on surfaces and in the near-field fog from one
+    /// shared shadow map of this many texels a side (`shared` only; 0: a ray per pixel
+    /// or frustum froxel and light, as `reference` always does).
+    ///
+    /// Beyond the paper: rendered once for all viewers and only when a light or mover
+    /// changed. On by default, as `fogcast bench` shows it wins.
     #[serde(default)]
-    pub shadow_map_px: u32,
-    /// Node spacing of the shared media transmittance volumes, metres (`shared` only):
-    /// T toward each light computed once per frame for all viewers, cached while media
-    /// and light are static (src/render/media_transmittance.rs). 0: every froxel and
-    /// pixel marches its own shadow ray through the media, as `reference` does.
+    shadow_map_px: u32 = 4096, was "map", "shadow_map";
+
+    /// Node spacing of the shared media transmittance volumes, metres (`shared` only; 0:
+    /// every froxel and pixel marches its own shadow ray through the media, as
+    /// `reference` does).
+    ///
+    /// T toward each light is computed once per frame for all viewers and cached while
+    /// media and light are static (src/render/media_transmittance.rs).
     #[serde(default = "default_transmittance_voxel_m")]
-    pub transmittance_voxel_m: f32,
-    /// Quadrature step of a shadow ray through height and noisy media, metres (at most
-    /// 32 steps per medium; homogeneous media are integrated exactly).
+    transmittance_voxel_m: f32 = default_transmittance_voxel_m(),
+        was "tvoxel", "transmittance_voxel";
+
+    /// Quadrature step of a shadow ray through height and noisy media, metres.
+    ///
+    /// At most 32 steps per medium; homogeneous media are integrated exactly.
     #[serde(default = "default_media_step_m")]
-    pub media_step_m: f32,
+    media_step_m: f32 = default_media_step_m(), was "media_step";
 }
 
+// What reports from before these settings existed read as (and their defaults).
 fn default_transmittance_voxel_m() -> f32 {
     0.5
 }
@@ -85,83 +202,332 @@ fn default_media_step_m() -> f32 {
     0.5
 }
 
-impl Default for Settings {
-    fn default() -> Self {
-        Settings {
-            mode: Mode::Shared,
-            voxel_size_m: 0.25,
-            froxel_px: 8,
-            slices: 128,
-            frustum_px: 16,
-            frustum_slice_fraction: 1.0 / 3.0,
-            parity: false,
-            trilinear: true,
-            temporal: false,
-            depth_curve: 4.0,
-            // Beyond the paper, on where `fogcast bench` shows they win (docs/performance.md):
-            // the demand-driven grid, temporal caching and shared surface shadow maps.
-            demand: true,
-            cache: true,
-            brick_pool: 0,
-            shadow_map_px: 4096,
-            transmittance_voxel_m: default_transmittance_voxel_m(),
-            media_step_m: default_media_step_m(),
-        }
+/// One setting, as `settings!` defines it.
+struct Setting {
+    /// The field's name: the key of config files and variants.
+    key: &'static str,
+    /// The field's documentation.
+    doc: &'static str,
+    /// What flags show as the default, where commands do not start from `default()`.
+    cli_default: Option<&'static str>,
+    /// Keys it had before.
+    was: &'static [OldKey],
+    /// What its values are, for errors and help.
+    takes: fn() -> String,
+    /// What flags' help shows for the value.
+    placeholder: fn() -> String,
+    /// The value of a flag given without one (`--parity` is `--parity on`).
+    bare: Option<&'static str>,
+    /// The value's text, as `set` reads it.
+    get: fn(&Settings) -> String,
+    /// Reads a value; `None` when the text is not one.
+    set: fn(&mut Settings, &str) -> Option<()>,
+}
+
+/// A key a setting had before, and values it spelled differently (old, new).
+struct OldKey {
+    key: &'static str,
+    values: &'static [(&'static str, &'static str)],
+}
+
+impl Setting {
+    /// The documentation's lines.
+    fn doc_lines(&self) -> impl Iterator<Item = &'static str> {
+        self.doc.lines().map(str::trim)
+    }
+
+    /// The first paragraph of the documentation, on one line.
+    fn summary(&self) -> String {
+        let lines: Vec<&str> = self.doc_lines().take_while(|l| !l.is_empty()).collect();
+        lines.join(" ")
+    }
+
+    fn flag(key: &str) -> String {
+        key.replace('_', "-")
     }
 }
 
+/// How a setting's type reads from and prints as text.
+trait Value: Sized {
+    /// The value a flag given without one means.
+    const BARE: Option<&'static str> = None;
+    /// What flags' help shows for the value.
+    fn placeholder() -> String {
+        Self::takes()
+    }
+    fn takes() -> String;
+    fn parse(text: &str) -> Option<Self>;
+    fn text(&self) -> String;
+}
+
+impl Value for f32 {
+    fn placeholder() -> String {
+        "X".into()
+    }
+    fn takes() -> String {
+        "a number".into()
+    }
+    fn parse(text: &str) -> Option<Self> {
+        text.parse::<f32>().ok().filter(|v| v.is_finite())
+    }
+    fn text(&self) -> String {
+        // Rust prints the shortest text that reads back as the same f32.
+        self.to_string()
+    }
+}
+
+impl Value for u32 {
+    fn placeholder() -> String {
+        "N".into()
+    }
+    fn takes() -> String {
+        "a whole number".into()
+    }
+    fn parse(text: &str) -> Option<Self> {
+        text.parse().ok()
+    }
+    fn text(&self) -> String {
+        self.to_string()
+    }
+}
+
+impl Value for bool {
+    const BARE: Option<&'static str> = Some("on");
+    fn takes() -> String {
+        "on|off".into()
+    }
+    fn parse(text: &str) -> Option<Self> {
+        match text {
+            "on" | "true" | "yes" => Some(true),
+            "off" | "false" | "no" => Some(false),
+            _ => None,
+        }
+    }
+    fn text(&self) -> String {
+        if *self { "on" } else { "off" }.into()
+    }
+}
+
+impl Value for Mode {
+    fn takes() -> String {
+        let names: Vec<&str> = Self::all().map(Mode::name).collect();
+        names.join("|")
+    }
+    fn parse(text: &str) -> Option<Self> {
+        Self::all().find(|m| m.name() == text)
+    }
+    fn text(&self) -> String {
+        self.name().into()
+    }
+}
+
+/// The setting `key` names (its own key or one it had before), and the old key if so.
+fn find(key: &str) -> Option<(&'static Setting, Option<&'static OldKey>)> {
+    SETTINGS.iter().find_map(|s| {
+        if s.key == key {
+            Some((s, None))
+        } else {
+            s.was.iter().find(|o| o.key == key).map(|o| (s, Some(o)))
+        }
+    })
+}
+
 impl Settings {
-    /// Checks ranges; the error names the setting and value.
+    /// `shared`'s defaults with the scene's voxel size: what flags, config files and
+    /// bench variants change.
+    pub fn for_scene(scene: &Scene) -> Settings {
+        Settings {
+            voxel_size_m: scene.render.voxel_size_m,
+            ..Settings::default()
+        }
+    }
+
+    /// Every setting's key, in the order of the fields.
+    pub fn keys() -> impl Iterator<Item = &'static str> {
+        SETTINGS.iter().map(|s| s.key)
+    }
+
+    /// Whether `key` names a setting (its key or one it had before).
+    pub fn knows(key: &str) -> bool {
+        find(key).is_some()
+    }
+
+    /// Sets the setting `key` (or a key it had before) from `value` as flags, config
+    /// files and variants spell it; returns its key. Errors name the key and value and
+    /// say what the setting takes, or list the keys. Ranges are `validate`'s.
+    pub fn set(&mut self, key: &str, value: &str) -> anyhow::Result<&'static str> {
+        let Some((setting, old)) = find(key) else {
+            let keys: Vec<&str> = Self::keys().collect();
+            bail!("unknown key '{key}' (keys: {})", keys.join(", "));
+        };
+        let text = match old.filter(|o| !o.values.is_empty()) {
+            Some(o) => o
+                .values
+                .iter()
+                .find(|(old, _)| *old == value)
+                .map(|(_, new)| *new)
+                .ok_or_else(|| {
+                    let olds: Vec<&str> = o.values.iter().map(|(old, _)| *old).collect();
+                    anyhow!("{key}={value}: expected {}", olds.join("|"))
+                })?,
+            None => value,
+        };
+        (setting.set)(self, text).ok_or_else(|| {
+            let takes = (setting.takes)();
+            match old {
+                Some(_) => anyhow!("{key}={value}: expected {takes} (for {})", setting.key),
+                None => anyhow!("{key}={value}: expected {takes}"),
+            }
+        })?;
+        Ok(setting.key)
+    }
+
+    /// Sets `key=value,key=value,…` in turn (see `set`).
+    pub fn set_all(&mut self, pairs: &str) -> anyhow::Result<()> {
+        for pair in pairs.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let (key, value) = pair
+                .split_once('=')
+                .ok_or_else(|| anyhow!("'{pair}' is not key=value"))?;
+            self.set(key.trim(), value.trim())?;
+        }
+        Ok(())
+    }
+
+    /// `key=value` as today's key and value text spell it (`voxel=0.50` is
+    /// `voxel_size_m=0.5`), or why it is not a setting.
+    pub fn spell(key: &str, value: &str) -> anyhow::Result<(&'static str, String)> {
+        let mut s = Settings::default();
+        let key = s.set(key, value)?;
+        let setting = find(key).expect("set returns a key of SETTINGS").0;
+        Ok((key, (setting.get)(&s)))
+    }
+
+    /// The settings that differ from `base`, as `key=value,…` in the order of the fields
+    /// (empty when none); `base.set_all` of it gives `self` back.
+    pub fn changes_from(&self, base: &Settings) -> String {
+        let changes: Vec<String> = SETTINGS
+            .iter()
+            .map(|s| (s, (s.get)(self)))
+            .filter(|(s, value)| *value != (s.get)(base))
+            .map(|(s, value)| format!("{}={value}", s.key))
+            .collect();
+        changes.join(",")
+    }
+
+    /// A flag for every setting but `mode` (commands declare it themselves: `render`
+    /// adds `truth`): `--` and the key in kebab case, with what `set` reads; older keys
+    /// are hidden aliases. Clap holds no defaults: only flags given change the settings
+    /// a command starts from (`given_flags`); the help shows `default()`'s.
+    pub fn flags() -> Vec<clap::Arg> {
+        let default = Settings::default();
+        let mut args = Vec::new();
+        for s in SETTINGS.iter().filter(|s| s.key != "mode") {
+            let shown = s
+                .cli_default
+                .map_or_else(|| (s.get)(&default), str::to_string);
+            let mut arg = clap::Arg::new(s.key)
+                .long(Setting::flag(s.key))
+                .value_name((s.placeholder)())
+                .help(format!(
+                    "{} [default: {shown}]",
+                    s.summary().trim_end_matches('.')
+                ))
+                .long_help(format!(
+                    "{}\n\n[default: {shown}]",
+                    s.doc_lines().collect::<Vec<_>>().join("\n").trim_end()
+                ))
+                .value_parser(move |v: &str| Settings::spell(s.key, v).map(|(_, text)| text));
+            if let Some(bare) = s.bare {
+                arg = arg.num_args(0..=1).default_missing_value(bare);
+            }
+            for old in s.was {
+                if old.values.is_empty() {
+                    arg = arg.alias(Setting::flag(old.key));
+                } else {
+                    let olds: Vec<&str> = old.values.iter().map(|(o, _)| *o).collect();
+                    args.push(
+                        clap::Arg::new(old.key)
+                            .long(Setting::flag(old.key))
+                            .value_name(olds.join("|"))
+                            .hide(true)
+                            .conflicts_with(s.key)
+                            .value_parser(move |v: &str| {
+                                Settings::spell(old.key, v).map(|(_, text)| text)
+                            }),
+                    );
+                }
+            }
+            args.push(arg);
+        }
+        args
+    }
+
+    /// The settings given on the command line by `flags()`, as (key, value text).
+    pub fn given_flags(matches: &clap::ArgMatches) -> Vec<(&'static str, String)> {
+        let mut given = Vec::new();
+        for s in SETTINGS.iter().filter(|s| s.key != "mode") {
+            let ids = std::iter::once(s.key)
+                .chain(s.was.iter().filter(|o| !o.values.is_empty()).map(|o| o.key));
+            for id in ids {
+                if let Some(text) = matches.get_one::<String>(id) {
+                    given.push((s.key, text.clone()));
+                }
+            }
+        }
+        given
+    }
+
+    /// Checks ranges; the error names the setting's key and value.
     pub fn validate(&self) -> anyhow::Result<()> {
         anyhow::ensure!(
             self.voxel_size_m.is_finite() && self.voxel_size_m >= 0.01,
-            "voxel size {} m: must be at least 0.01 m",
+            "voxel_size_m={}: must be at least 0.01 m",
             self.voxel_size_m
         );
         anyhow::ensure!(
             (1..=64).contains(&self.froxel_px),
-            "froxel size {} px: must be 1..=64",
+            "froxel_px={}: must be 1..=64",
             self.froxel_px
         );
         anyhow::ensure!(
             (2..=512).contains(&self.slices),
-            "slices {}: must be 2..=512",
+            "slices={}: must be 2..=512",
             self.slices
         );
         anyhow::ensure!(
             (1..=128).contains(&self.frustum_px),
-            "shadow frustum froxel size {} px: must be 1..=128",
+            "frustum_px={}: must be 1..=128",
             self.frustum_px
         );
         anyhow::ensure!(
             (0.0..=1.0).contains(&self.frustum_slice_fraction),
-            "shadow frustum slice fraction {}: must be 0..=1",
+            "frustum_slice_fraction={}: must be 0..=1",
             self.frustum_slice_fraction
         );
         anyhow::ensure!(
             self.brick_pool <= 1 << 20,
-            "brick pool {}: at most 1048576 bricks",
+            "brick_pool={}: at most 1048576 bricks",
             self.brick_pool
         );
         anyhow::ensure!(
             self.shadow_map_px == 0 || (64..=8192).contains(&self.shadow_map_px),
-            "shadow map {} texels a side: must be 0 (rays) or 64..=8192",
+            "shadow_map_px={}: must be 0 (rays) or 64..=8192 texels a side",
             self.shadow_map_px
         );
         anyhow::ensure!(
             self.transmittance_voxel_m == 0.0
                 || (self.transmittance_voxel_m.is_finite() && self.transmittance_voxel_m >= 0.01),
-            "transmittance voxel {} m: must be 0 (march per sample) or at least 0.01 m",
+            "transmittance_voxel_m={}: must be 0 (march per sample) or at least 0.01 m",
             self.transmittance_voxel_m
         );
         anyhow::ensure!(
             self.media_step_m.is_finite() && self.media_step_m >= 0.01,
-            "media step {} m: must be at least 0.01 m",
+            "media_step_m={}: must be at least 0.01 m",
             self.media_step_m
         );
         anyhow::ensure!(
             self.depth_curve.is_finite() && (0.01..=20.0).contains(&self.depth_curve),
-            "depth curve {}: must be 0.01..=20",
+            "depth_curve={}: must be 0.01..=20",
             self.depth_curve
         );
         Ok(())
@@ -176,8 +542,193 @@ impl Settings {
     /// history needs the hidden froxels.
     pub fn culls_hidden_froxels(&self) -> bool {
         self.mode == Mode::Shared
-            && (self.demand || self.brick_pool > 0)
+            && super::GridUpdate::of(self).requests()
             && !self.temporal
             && self.frustum_slices() < self.slices
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Settings with `key` changed from the default to some other valid value, and the
+    /// value's text.
+    fn changed(key: &str) -> (Settings, String) {
+        let default = Settings::default();
+        [
+            "off",
+            "on",
+            "reference",
+            "shared",
+            "0",
+            "0.5",
+            "2",
+            "64",
+            "3",
+        ]
+        .into_iter()
+        .find_map(|text| {
+            let mut s = default;
+            s.set(key, text).ok()?;
+            (s != default).then(|| (s, text.to_string()))
+        })
+        .unwrap_or_else(|| panic!("{key}: no other value found"))
+    }
+
+    #[test]
+    fn every_setting_round_trips_through_its_spelling() {
+        let default = Settings::default();
+        let mut all = default;
+        for key in Settings::keys() {
+            let (s, text) = changed(key);
+            let spelled = s.changes_from(&default);
+            assert_eq!(
+                spelled,
+                format!("{key}={}", Settings::spell(key, &text).unwrap().1)
+            );
+            let mut back = default;
+            back.set_all(&spelled).unwrap();
+            assert_eq!(back, s, "{spelled}");
+            all.set_all(&spelled).unwrap();
+        }
+        let mut back = default;
+        back.set_all(&all.changes_from(&default)).unwrap();
+        assert_eq!(back, all);
+        assert_eq!(default.changes_from(&default), "");
+    }
+
+    #[test]
+    fn the_table_has_every_field_under_its_serde_name() {
+        let json = serde_json::to_value(Settings::default()).unwrap();
+        let fields: Vec<&str> = json
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .collect();
+        let mut keys: Vec<&str> = Settings::keys().collect();
+        keys.sort_unstable();
+        assert_eq!(fields, keys, "serde_json sorts its keys");
+        for m in Mode::all() {
+            assert_eq!(serde_json::to_value(m).unwrap(), m.name());
+            let clap_name = clap::ValueEnum::to_possible_value(&m).unwrap();
+            assert_eq!(clap_name.get_name(), m.name());
+        }
+    }
+
+    #[test]
+    fn the_docs_list_every_key() {
+        for (doc, text) in [
+            ("docs/protocol.md", include_str!("../../docs/protocol.md")),
+            (
+                "docs/performance.md",
+                include_str!("../../docs/performance.md"),
+            ),
+        ] {
+            for key in Settings::keys() {
+                assert!(text.contains(&format!("`{key}`")), "{doc} lists `{key}`");
+            }
+        }
+    }
+
+    #[test]
+    fn older_keys_still_read() {
+        let mut s = Settings::default();
+        s.set_all("voxel=0.5,frustum=0.25,lookup=nearest,pool=64,map=0,tvoxel=1,media_step=0.25")
+            .unwrap();
+        let mut today = Settings::default();
+        today
+            .set_all(
+                "voxel_size_m=0.5,frustum_slice_fraction=0.25,trilinear=off,brick_pool=64,\
+                 shadow_map_px=0,transmittance_voxel_m=1,media_step_m=0.25",
+            )
+            .unwrap();
+        assert_eq!(s, today);
+        assert_eq!(
+            Settings::spell("lookup", "trilinear").unwrap(),
+            ("trilinear", "on".into())
+        );
+    }
+
+    #[test]
+    fn errors_name_the_key_and_value() {
+        for (pairs, needle) in [
+            (
+                "voxel=abc",
+                "voxel=abc: expected a number (for voxel_size_m)",
+            ),
+            ("lookup=cubic", "lookup=cubic: expected nearest|trilinear"),
+            ("trilinear=nearest", "trilinear=nearest: expected on|off"),
+            ("mode=truth", "mode=truth: expected reference|shared"),
+            ("slices=-3", "slices=-3: expected a whole number"),
+            ("voxel_size_m=inf", "voxel_size_m=inf"),
+            (
+                "speed=3",
+                "unknown key 'speed' (keys: mode, voxel_size_m, froxel_px",
+            ),
+            ("parity", "'parity' is not key=value"),
+        ] {
+            let e = Settings::default().set_all(pairs).unwrap_err().to_string();
+            assert!(e.contains(needle), "{pairs}: {e}");
+        }
+    }
+
+    #[test]
+    fn flags_show_the_defaults_and_change_only_what_is_given() {
+        let command = || clap::Command::new("t").args(Settings::flags());
+        let help = command().render_help().to_string();
+        let default = Settings::default();
+        let mut at_defaults = vec!["t".to_string()];
+        for key in Settings::keys().filter(|k| *k != "mode") {
+            let flag = format!("--{}", key.replace('_', "-"));
+            let setting = find(key).unwrap().0;
+            let shown = setting
+                .cli_default
+                .map_or_else(|| (setting.get)(&default), str::to_string);
+            assert!(help.contains(&flag), "{flag} in\n{help}");
+            assert!(
+                help.contains(&format!("[default: {shown}]")),
+                "{key}: {shown}"
+            );
+            if setting.cli_default.is_none() {
+                at_defaults.extend([flag, shown]);
+            }
+        }
+        let none = command().get_matches_from(["t"]);
+        assert!(Settings::given_flags(&none).is_empty());
+        let given = Settings::given_flags(&command().get_matches_from(&at_defaults));
+        let mut s = default;
+        for (key, value) in &given {
+            s.set(key, value).unwrap();
+        }
+        assert_eq!(given.len(), Settings::keys().count() - 2);
+        assert_eq!(s, default, "every flag at its shown default is the default");
+
+        let m = command().get_matches_from([
+            "t",
+            "--parity",
+            "--demand",
+            "false",
+            "--lookup",
+            "nearest",
+            "--voxel-size",
+            "0.5",
+            "--map",
+            "0",
+        ]);
+        assert_eq!(
+            Settings::given_flags(&m),
+            [
+                ("voxel_size_m", "0.5".to_string()),
+                ("parity", "on".into()),
+                ("trilinear", "off".into()),
+                ("demand", "off".into()),
+                ("shadow_map_px", "0".into()),
+            ]
+        );
+        let bad = command().try_get_matches_from(["t", "--slices", "many"]);
+        let e = bad.unwrap_err().to_string();
+        assert!(e.contains("slices=many: expected a whole number"), "{e}");
     }
 }

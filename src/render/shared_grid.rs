@@ -182,7 +182,7 @@ impl SharedShadowGrid {
         let largest = grid_bytes.max(request_bytes).max(table_bytes);
         anyhow::ensure!(
             largest <= ctx.max_storage_binding,
-            "a {voxel_size_m} m shadow grid over {extent:?} m is {}×{}×{} = {voxels} voxels; its largest buffer is {:.0} MiB, more than the adapter can bind ({:.0} MiB): use a larger --voxel-size{}",
+            "a {voxel_size_m} m shadow grid over {extent:?} m is {}×{}×{} = {voxels} voxels; its largest buffer is {:.0} MiB, more than the adapter can bind ({:.0} MiB): use a larger --voxel-size-m{}",
             dims.x,
             dims.y,
             dims.z,

@@ -1,7 +1,8 @@
 //! `fogcast serve` flags: a config file, then flags over it.
 
 use super::{Server, ServerConfig};
-use crate::render::Mode;
+use crate::render::{Mode, Settings};
+use crate::settings_overrides::SettingsOverrides;
 use std::net::IpAddr;
 use std::path::PathBuf;
 
@@ -14,8 +15,8 @@ pub struct ServeArgs {
     /// Built-in scene (colonnade, street, islands), a scene .toml, or a .glb/.gltf file [default: colonnade].
     #[arg(long)]
     pub scene: Option<String>,
-    /// Rendering mode [default: shared].
-    #[arg(long, value_enum)]
+    /// Rendering mode.
+    #[arg(long, value_enum, help = format!("Rendering mode [default: {}]", Settings::default().mode.name()))]
     pub mode: Option<Mode>,
     /// Address to listen on [default: 127.0.0.1].
     #[arg(long)]
@@ -41,6 +42,9 @@ pub struct ServeArgs {
     /// Token clients must send in their hello [default: none, open server].
     #[arg(long)]
     pub token: Option<String>,
+    /// The renderer's settings (as in `fogcast render`).
+    #[command(flatten)]
+    pub settings: SettingsOverrides,
 }
 
 impl ServeArgs {
@@ -54,8 +58,9 @@ impl ServeArgs {
             c.scene = v.clone();
         }
         if let Some(v) = self.mode {
-            c.mode = v;
+            c.settings.set("mode", v.name())?;
         }
+        c.settings.extend(&self.settings);
         if let Some(v) = self.addr {
             c.addr = v;
         }
@@ -100,4 +105,55 @@ pub fn serve(args: &ServeArgs) -> anyhow::Result<()> {
         );
         server.run_until_signal().await
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser as _;
+
+    #[derive(clap::Parser)]
+    struct Serve {
+        #[command(flatten)]
+        args: ServeArgs,
+    }
+
+    #[test]
+    fn flags_override_the_config_files_settings() {
+        let file =
+            std::env::temp_dir().join(format!("fogcast-serve-args-{}.toml", std::process::id()));
+        std::fs::write(
+            &file,
+            "port = 9000\nmode = \"reference\"\ndemand = false\nmap = 0\n",
+        )
+        .unwrap();
+        let args = Serve::try_parse_from([
+            "serve",
+            "--config",
+            file.to_str().unwrap(),
+            "--mode",
+            "shared",
+            "--demand",
+            "on",
+            "--voxel-size-m",
+            "0.5",
+        ])
+        .unwrap()
+        .args;
+        let c = args.config();
+        std::fs::remove_file(&file).unwrap();
+        let c = c.unwrap();
+        assert_eq!(c.port, 9000);
+        let mut expected = Settings::default();
+        expected
+            .set_all("voxel_size_m=0.5,shadow_map_px=0")
+            .unwrap();
+        assert_eq!(c.settings.apply(Settings::default()).unwrap(), expected);
+        let e = Serve::try_parse_from(["serve", "--slices", "1"])
+            .unwrap()
+            .args
+            .config()
+            .unwrap_err();
+        assert!(e.to_string().contains("slices=1: must be 2..=512"), "{e}");
+    }
 }

@@ -1,21 +1,26 @@
 //! Server settings: defaults, a TOML config file, and the checks that run before start.
 
 use super::protocol::SpecLimits;
-use crate::render::Mode;
+use crate::render::Settings;
+use crate::settings_overrides::SettingsOverrides;
 use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 use std::net::{IpAddr, Ipv4Addr};
 use std::path::Path;
 
 /// Everything `fogcast serve` can be told; a config file holds any subset of these keys
-/// (see `docs/protocol.md` for the example file), flags override it.
+/// and of the renderer settings' (see `docs/protocol.md` for the example file), flags
+/// override it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(default)]
 pub struct ServerConfig {
     /// Built-in scene name, scene .toml or .glb/.gltf file.
     pub scene: String,
-    /// Rendering mode.
-    pub mode: Mode,
+    /// Renderer settings by their keys (`mode`, `voxel_size_m`, `demand`, … as
+    /// `Settings` names them), over `shared`'s defaults with the scene's voxel size. A
+    /// key of the file that is not the server's must be one of these.
+    #[serde(flatten)]
+    pub settings: SettingsOverrides,
     /// Address to listen on.
     pub addr: IpAddr,
     /// Port to listen on (0: any free port, reported at start).
@@ -67,8 +72,6 @@ pub struct ServerConfig {
     pub send_buffer_bytes: usize,
     /// JPEG encoder threads (0: one per core).
     pub encode_threads: usize,
-    /// Shared grid voxel size in metres (default: the scene's).
-    pub voxel_size_m: Option<f32>,
     /// Seconds a session may go without a frame (from its welcome or its last frame)
     /// before it is closed with `no_frames`.
     pub frame_timeout_s: f64,
@@ -114,7 +117,7 @@ impl Default for ServerConfig {
     fn default() -> Self {
         ServerConfig {
             scene: "colonnade".into(),
-            mode: Mode::Shared,
+            settings: SettingsOverrides::default(),
             addr: IpAddr::V4(Ipv4Addr::LOCALHOST),
             port: 8080,
             fps: 30.0,
@@ -137,7 +140,6 @@ impl Default for ServerConfig {
             max_configures_per_s: 2.0,
             send_buffer_bytes: 256 * 1024,
             encode_threads: 0,
-            voxel_size_m: None,
             frame_timeout_s: 30.0,
             // Four 1920×1080 views.
             max_pixels_per_frame: 4 * 1920 * 1080,
@@ -160,6 +162,7 @@ impl ServerConfig {
 
     /// Checks every range; the error names the key, the value and the range.
     pub fn validate(&self) -> anyhow::Result<()> {
+        self.settings.apply(Settings::default())?;
         anyhow::ensure!(
             self.fps.is_finite() && self.fps > 0.0 && self.fps <= 240.0,
             "fps {}: must be in (0, 240]",
@@ -285,17 +288,33 @@ mod tests {
 
     #[test]
     fn config_file_overrides_some_keys() {
-        let c: ServerConfig = toml::from_str("scene = \"street\"\nport = 9000\nmax_views = 4\ntoken = \"s3cret\"\nmode = \"reference\"\n").unwrap();
-        assert_eq!(
-            (c.scene.as_str(), c.port, c.max_views, c.mode),
-            ("street", 9000, 4, Mode::Reference)
-        );
+        let c: ServerConfig = toml::from_str(
+            "scene = \"street\"\nport = 9000\nmax_views = 4\ntoken = \"s3cret\"\nmode = \"reference\"\n\
+             voxel_size_m = 1\ndemand = false\nmap = 0\ntransmittance_voxel_m = 0.25\n",
+        )
+        .unwrap();
+        assert_eq!((c.scene.as_str(), c.port, c.max_views), ("street", 9000, 4));
         assert_eq!(c.fps, ServerConfig::default().fps);
         c.validate().unwrap();
-        assert!(
-            toml::from_str::<ServerConfig>("prot = 1").is_err(),
-            "unknown keys are rejected"
-        );
+        let mut expected = Settings::default();
+        expected
+            .set_all("mode=reference,voxel_size_m=1,demand=off,shadow_map_px=0,transmittance_voxel_m=0.25")
+            .unwrap();
+        assert_eq!(c.settings.apply(Settings::default()).unwrap(), expected);
+        for (text, needle) in [
+            ("prot = 1", "unknown key 'prot'"),
+            ("demand = \"maybe\"", "demand=maybe: expected on|off"),
+            ("mode = \"truth\"", "mode=truth: expected reference|shared"),
+            ("port = \"x\"", "port"),
+        ] {
+            let e = toml::from_str::<ServerConfig>(text)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(needle), "{text}: {e}");
+        }
+        let bad_range: ServerConfig = toml::from_str("slices = 1").unwrap();
+        let e = bad_range.validate().unwrap_err().to_string();
+        assert!(e.contains("slices=1: must be 2..=512"), "{e}");
         assert!(ServerConfig {
             fps: f64::NAN,
             ..Default::default()

@@ -67,12 +67,7 @@ impl Server {
             tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
                 let scene = Arc::new(Scene::load(&cfg.scene)?);
                 let ctx = Arc::new(GpuContext::new()?);
-                let settings = Settings {
-                    mode: cfg.mode,
-                    voxel_size_m: cfg.voxel_size_m.unwrap_or(scene.render.voxel_size_m),
-                    ..Settings::default()
-                };
-                settings.validate()?;
+                let settings = cfg.settings.apply(Settings::for_scene(&scene))?;
                 let started = Instant::now();
                 let bvh = Bvh::build(&scene.mesh)?;
                 tracing::info!(
