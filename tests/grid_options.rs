@@ -2,16 +2,12 @@
 //! sampled, and re-trace only what changed"): the demand-driven update traces exactly the
 //! voxels the froxels read, and temporal caching re-traces only lights that moved.
 
-use fogcast::gpu::GpuContext;
+mod gpu_support;
+
 use fogcast::render::{FrameOutput, Mode, Renderer, Settings};
 use fogcast::scene::{Camera, Scene};
-use std::sync::{Arc, OnceLock};
-
-fn gpu() -> Arc<GpuContext> {
-    static CTX: OnceLock<Arc<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| Arc::new(GpuContext::new().expect("a Vulkan adapter (run `make deps`)")))
-        .clone()
-}
+use gpu_support::gpu;
+use std::sync::Arc;
 
 fn settings(demand: bool, cache: bool) -> Settings {
     Settings {

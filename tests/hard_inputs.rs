@@ -18,14 +18,16 @@
 //! and `truth` marches [`TRUTH_STEPS`] segments per pixel, which keeps the whole suite
 //! under half a minute on 2 cores.
 
-use fogcast::gpu::GpuContext;
+mod gpu_support;
+
 use fogcast::metrics::compare;
 use fogcast::render::{FrameOutput, Mode, Renderer, Settings};
 use fogcast::scene::{Bvh, Camera, LightDesc, MediumDesc, MeshDesc, Scene, SceneDesc};
 use fogcast::truth::{render_truth_radiance, tone_map_image, TruthSettings};
 use glam::Vec3;
+use gpu_support::gpu;
 use std::path::Path;
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 mod scene_support;
 
@@ -38,12 +40,6 @@ const TRUTH_STEPS: u32 = 256;
 /// Mean sRGB luminance a frame must exceed: the scenes have a bright sky and ambient
 /// light, so anything darker means pixels went black.
 const MIN_MEAN_LUMA: f64 = 2.0 / 255.0;
-
-fn gpu() -> Arc<GpuContext> {
-    static CTX: OnceLock<Arc<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| Arc::new(GpuContext::new().expect("a Vulkan adapter (lavapipe on CI)")))
-        .clone()
-}
 
 /// Render defaults of most cases; a case about near/far replaces this section.
 const RENDER: &str = r#"

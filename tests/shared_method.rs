@@ -2,21 +2,11 @@
 //! (mean FLIP), traces fewer rays with many viewers, and its world grid does not depend
 //! on how many viewers asked for it.
 
-use fogcast::gpu::GpuContext;
+mod gpu_support;
+
 use fogcast::metrics::compare;
 use fogcast::render::{Mode, Renderer, Settings};
-use fogcast::scene::Scene;
-use std::sync::{Arc, OnceLock};
-
-fn gpu() -> Arc<GpuContext> {
-    static CTX: OnceLock<Arc<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| Arc::new(GpuContext::new().expect("a Vulkan adapter (run `make deps`)")))
-        .clone()
-}
-
-fn colonnade() -> Arc<Scene> {
-    Arc::new(Scene::load("colonnade").expect("built-in scene"))
-}
+use gpu_support::{colonnade, gpu};
 
 fn settings(mode: Mode) -> Settings {
     Settings {

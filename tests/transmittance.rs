@@ -6,20 +6,16 @@
 //! and the stage's cost: once per frame, nothing in a static scene after the first frame,
 //! and no opaque shadow ray when wind moves the media.
 
-use fogcast::gpu::GpuContext;
+mod gpu_support;
+
 use fogcast::metrics::compare;
 use fogcast::render::{FrameOutput, Mode, Renderer, Settings};
 use fogcast::scene::{Bvh, Camera, Scene};
 use fogcast::truth::{render_truth, TruthSettings};
 use glam::Vec3;
+use gpu_support::gpu;
 use std::path::Path;
-use std::sync::{Arc, OnceLock};
-
-fn gpu() -> Arc<GpuContext> {
-    static CTX: OnceLock<Arc<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| Arc::new(GpuContext::new().expect("a Vulkan adapter (lavapipe on CI)")))
-        .clone()
-}
+use std::sync::Arc;
 
 fn load(text: &str) -> Scene {
     Scene::from_toml(text, Path::new("inline.toml"))

@@ -1,21 +1,17 @@
 //! The ground-truth renderer as a yardstick: converged, and close to `reference`;
 //! `shared`'s error against it falls as the voxels shrink.
 
-use fogcast::gpu::GpuContext;
+mod gpu_support;
+
 use fogcast::metrics::compare;
 use fogcast::render::{Mode, Renderer, Settings};
 use fogcast::scene::{Bvh, Scene};
 use fogcast::truth::{render_truth, TruthSettings};
+use gpu_support::gpu;
 use std::sync::{Arc, OnceLock};
 
 const W: u32 = 160;
 const H: u32 = 90;
-
-fn gpu() -> Arc<GpuContext> {
-    static CTX: OnceLock<Arc<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| Arc::new(GpuContext::new().expect("a Vulkan adapter (run `make deps`)")))
-        .clone()
-}
 
 struct Fixture {
     scene: Arc<Scene>,

@@ -3,20 +3,11 @@
 //! the viewers need; every session's frame is bit-identical to rendering it alone against
 //! the same world state; and a viewer's frames do not change when others join or leave.
 
-use fogcast::gpu::GpuContext;
+mod gpu_support;
+
 use fogcast::render::{FrameTarget, Renderer, Settings, TargetView, ViewerId};
-use fogcast::scene::{Camera, Scene};
-use std::sync::{Arc, OnceLock};
-
-fn gpu() -> Arc<GpuContext> {
-    static CTX: OnceLock<Arc<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| Arc::new(GpuContext::new().expect("a Vulkan adapter (run `make deps`)")))
-        .clone()
-}
-
-fn colonnade() -> Arc<Scene> {
-    Arc::new(Scene::load("colonnade").expect("built-in scene"))
-}
+use fogcast::scene::Camera;
+use gpu_support::{colonnade, gpu};
 
 /// A session's frame of `cols × rows` tiles of `view` pixels, one camera per tile.
 fn session(first_id: ViewerId, cams: &[Camera], view: (u32, u32), cols: u32) -> FrameTarget {
