@@ -151,7 +151,7 @@ async fn errors_name_the_problem() {
     };
     assert!(format!("{:#}", bad.validate().unwrap_err()).contains("http"));
     let odd = LoadgenConfig {
-        layout: fogcast::server::protocol::Layout::Stereo,
+        layout: fogcast::protocol::Layout::Stereo,
         viewers: vec![3],
         ..LoadgenConfig::default()
     };

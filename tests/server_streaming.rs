@@ -3,7 +3,7 @@
 
 mod server_support;
 
-use fogcast::server::protocol::{Layout, ViewPose, FRAME_HEADER_BYTES};
+use fogcast::protocol::{Layout, ViewPose, FRAME_HEADER_BYTES};
 use server_support::*;
 use std::time::Duration;
 
@@ -176,12 +176,11 @@ async fn stereo_and_split_sessions_tile_their_views() {
     )
     .await;
 
-    let frame_with_seq =
-        |seq: u32| move |h: &fogcast::server::protocol::FrameHeader| h.pose_seq == seq;
+    let frame_with_seq = |seq: u32| move |h: &fogcast::protocol::FrameHeader| h.pose_seq == seq;
     async fn wait_for(
         ws: &mut Ws,
-        ok: impl Fn(&fogcast::server::protocol::FrameHeader) -> bool,
-    ) -> (fogcast::server::protocol::FrameHeader, image::RgbImage) {
+        ok: impl Fn(&fogcast::protocol::FrameHeader) -> bool,
+    ) -> (fogcast::protocol::FrameHeader, image::RgbImage) {
         for _ in 0..100 {
             let (h, jpeg) = next_frame(ws).await;
             if ok(&h) {

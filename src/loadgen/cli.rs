@@ -1,7 +1,7 @@
 //! `fogcast loadgen` flags.
 
 use super::{run, write_report, LoadgenConfig};
-use crate::server::protocol::Layout;
+use crate::protocol::Layout;
 use std::path::PathBuf;
 
 /// Session layout of the simulated viewers.

@@ -29,7 +29,7 @@ mod stats;
 pub use cli::{loadgen, LayoutArg, LoadgenArgs};
 pub use output::write_report;
 
-use crate::server::protocol::{Layout, MAX_SPLIT_VIEWS};
+use crate::protocol::{Hello, Layout, MAX_SPLIT_VIEWS, PROTOCOL_VERSION};
 use anyhow::Context as _;
 use client::{Flight, Live, Target};
 use paths::Paths;
@@ -156,18 +156,17 @@ impl LoadgenConfig {
         Ok(())
     }
 
-    fn hello(&self) -> serde_json::Value {
-        let mut h = serde_json::json!({
-            "type": "hello", "version": 1, "width": self.width, "height": self.height,
-            "layout": self.layout, "quality": self.quality,
-        });
-        if self.layout == Layout::Split {
-            h["views"] = self.split_views.into();
+    fn hello(&self) -> Hello {
+        Hello {
+            version: PROTOCOL_VERSION,
+            width: self.width,
+            height: self.height,
+            layout: self.layout,
+            views: (self.layout == Layout::Split).then_some(self.split_views),
+            quality: Some(self.quality),
+            eye_distance_m: None,
+            token: self.token.clone(),
         }
-        if let Some(t) = &self.token {
-            h["token"] = t.clone().into();
-        }
-        h
     }
 }
 

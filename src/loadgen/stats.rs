@@ -2,7 +2,7 @@
 
 use super::client::ViewerRecord;
 use super::{Latency, PointSummary, ViewerStats};
-use crate::server::protocol::FrameHeader;
+use crate::protocol::FrameHeader;
 use std::time::{Duration, Instant};
 
 /// Nearest-rank percentile `p` (0–100) of sorted `v`.
@@ -183,7 +183,7 @@ pub(crate) fn summary(viewers: &[ViewerStats], pooled_ms: Vec<f64>) -> PointSumm
 mod tests {
     use super::*;
     use crate::loadgen::client::FrameRecord;
-    use crate::server::protocol::Layout;
+    use crate::protocol::Layout;
 
     fn frame(at: Instant, frame: u32, pose_seq: u32, dropped: u32) -> FrameRecord {
         FrameRecord {

@@ -2,8 +2,9 @@
 //! frame header. Runs on the encoder pool, never on the render thread.
 
 use super::hub::{EncodedFrame, Hub, SessionShared};
-use super::protocol::{FrameHeader, SessionSpec, FRAME_HEADER_BYTES};
 use super::telemetry::DropReason;
+use super::validate::SessionSpec;
+use crate::protocol::{FrameHeader, FRAME_HEADER_BYTES};
 use axum::body::Bytes;
 use std::sync::atomic::Ordering::{Relaxed, Release};
 use std::sync::Arc;
@@ -109,7 +110,8 @@ pub(crate) fn compose(s: &SessionSpec, images: &[Vec<u8>]) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::server::protocol::{Layout, SpecLimits};
+    use crate::protocol::Layout;
+    use crate::server::validate::SpecLimits;
 
     #[test]
     fn split_views_land_in_their_tiles() {

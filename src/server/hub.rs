@@ -6,8 +6,9 @@
 use super::admission::{Pending, TokenBackoff};
 use super::budget::{Budget, Usage};
 use super::config::ServerConfig;
-use super::protocol::{cameras_for, CheckedPose, ErrorCode, Layout, ProtocolError, SessionSpec};
 use super::telemetry::{DropReason, Telemetry};
+use super::validate::{cameras_for, CheckedPose, ProtocolError, SessionSpec};
+use crate::protocol::{ErrorCode, Layout};
 use crate::scene::{Camera, Scene};
 use axum::body::Bytes;
 use std::collections::BTreeMap;

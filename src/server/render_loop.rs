@@ -16,9 +16,10 @@
 use super::config::FaultKind;
 use super::encode::EncodeJob;
 use super::hub::{Hub, SessionSnapshot};
-use super::protocol::{ErrorCode, ProtocolError};
 use super::telemetry::DropReason;
+use super::validate::ProtocolError;
 use crate::gpu::GpuContext;
+use crate::protocol::ErrorCode;
 use crate::render::{Renderer, Settings};
 use crate::scene::Bvh;
 use std::collections::{BTreeMap, HashMap, HashSet};

@@ -5,12 +5,12 @@
 
 use super::hub::{layout_name, ConnectionGuard, Hub, SessionShared};
 use super::listen::Slot;
-use super::protocol::{
-    check_pose, clip, parse_client_message, CheckedPose, ClientMessage, ErrorCode, ErrorMessage,
-    Hello, Limits, ProtocolError, ServerMessage, SessionSpec, Welcome, FOV_RANGE_DEG,
-    FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
-};
 use super::telemetry::DropReason;
+use super::validate::{check_pose, parse_client_message, CheckedPose, ProtocolError, SessionSpec};
+use crate::protocol::{
+    clip, ClientMessage, ErrorCode, ErrorMessage, Hello, Limits, ServerMessage, Welcome,
+    FOV_RANGE_DEG, FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
+};
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
 use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt as _, StreamExt as _};
