@@ -1,10 +1,13 @@
 //! Where each simulated viewer flies: the scene's own camera loop, viewers spread evenly
 //! along it as players over a level would be (as `fogcast render` and the bench place
-//! them), or — when the scene is not available on this machine — a slow circle around
-//! the viewpoint the server handed out in the welcome.
+//! them), or — when the scene file is not on this machine — a slow circle around the
+//! viewpoint the server handed out in the welcome.
+//!
+//! Only the scene's camera loop is read ([`load_camera_path`]), never its meshes, and it
+//! stays in the scene file's coordinates, the ones poses are sent in.
 
 use crate::protocol::ViewPose;
-use crate::scene::{Camera, CameraPath, Scene};
+use crate::scene::{load_camera_path, Camera, CameraPath};
 use glam::{DQuat, DVec3};
 
 /// Radius of the fallback circle, metres.
@@ -27,16 +30,11 @@ pub(crate) enum Paths {
 }
 
 impl Paths {
-    /// The scene's loop if `scene` loads here, else circles (the reason is returned).
+    /// The scene's loop if its file (or built-in name) is known here, else circles (the
+    /// reason is returned).
     pub(crate) fn load(scene: &str) -> (Paths, Option<String>) {
-        match Scene::load(scene) {
-            Ok(s) => (
-                Paths::Scene {
-                    name: s.name,
-                    path: s.camera,
-                },
-                None,
-            ),
+        match load_camera_path(scene) {
+            Ok((name, path)) => (Paths::Scene { name, path }, None),
             Err(e) => (Paths::Orbit, Some(format!("scene {scene:?}: {e}"))),
         }
     }
@@ -138,6 +136,10 @@ mod tests {
         for p in [a, b, a_later] {
             assert_valid(&p);
         }
+
+        // A scene file's loop, read without its glTF meshes.
+        let (sponza, why) = Paths::load("scenes/sponza.toml");
+        assert!(matches!(sponza, Paths::Scene { .. }), "{why:?}");
 
         let (orbit, why) = Paths::load("no-such-scene-here");
         assert!(matches!(orbit, Paths::Orbit) && why.is_some());

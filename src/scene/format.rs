@@ -280,3 +280,12 @@ pub struct SceneDesc {
     /// Where viewers stand.
     pub camera: CameraPath,
 }
+
+/// The name and camera loop of a scene file; every other key is skipped unread.
+#[derive(Debug, Deserialize)]
+pub(super) struct NameAndCamera {
+    /// Scene name.
+    pub(super) name: String,
+    /// Where viewers stand.
+    pub(super) camera: CameraPath,
+}

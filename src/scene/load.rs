@@ -1,23 +1,40 @@
 //! Loading: a built-in scene, a TOML scene file or a bare glTF file becomes a [`Scene`]
-//! in render space (validated, moved by its origin, lights ranked).
+//! in render space (validated, moved by its origin, lights ranked); or just its camera
+//! loop, read without the meshes.
 
+use super::format::NameAndCamera;
 use super::validate::{validate_lights, validate_media, validate_render};
 use super::{
-    builtin_scene, gltf_load, media, mesh, Light, Mover, Scene, SceneDesc, SceneError, MAX_LIGHTS,
+    builtin_scene, gltf_load, media, mesh, CameraPath, Light, Mover, Scene, SceneDesc, SceneError,
+    MAX_LIGHTS,
 };
 use glam::Vec3;
+use serde::de::DeserializeOwned;
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
-impl Scene {
-    /// Loads a built-in scene by name, a `.toml` scene file, or a `.glb`/`.gltf` file
-    /// (which gets a default sun, fog and camera path around its bounds).
-    pub fn load(name_or_path: &str) -> Result<Scene, SceneError> {
+/// Where a scene's description comes from.
+enum Source<'a> {
+    /// TOML text (a built-in scene or a file); `path` names it in errors and relative
+    /// mesh paths resolve against `base_dir`.
+    Toml {
+        text: Cow<'static, str>,
+        path: PathBuf,
+        base_dir: PathBuf,
+    },
+    /// A bare glTF file.
+    Gltf(&'a Path),
+}
+
+impl<'a> Source<'a> {
+    /// A built-in scene by name, a `.toml` file, or a `.glb`/`.gltf` file.
+    fn find(name_or_path: &'a str) -> Result<Source<'a>, SceneError> {
         if let Some(text) = builtin_scene(name_or_path) {
-            let desc: SceneDesc = toml::from_str(text).map_err(|e| SceneError::Parse {
+            return Ok(Source::Toml {
+                text: Cow::Borrowed(text),
                 path: PathBuf::from(format!("<built-in {name_or_path}>")),
-                message: e.to_string(),
-            })?;
-            return Scene::from_desc(desc, Path::new("."));
+                base_dir: PathBuf::from("."),
+            });
         }
         let path = Path::new(name_or_path);
         if !path.exists() {
@@ -29,23 +46,68 @@ impl Scene {
             .unwrap_or("")
             .to_ascii_lowercase();
         if ext == "glb" || ext == "gltf" {
-            return Scene::from_desc(gltf_load::default_desc_for(path)?, Path::new("."));
+            return Ok(Source::Gltf(path));
         }
         let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
             path: path.to_path_buf(),
             source,
         })?;
-        Scene::from_toml(&text, path)
+        Ok(Source::Toml {
+            text: Cow::Owned(text),
+            path: path.to_path_buf(),
+            base_dir: path.parent().unwrap_or(Path::new(".")).to_path_buf(),
+        })
+    }
+}
+
+/// Parses TOML text; errors name `path`.
+fn parse<T: DeserializeOwned>(text: &str, path: &Path) -> Result<T, SceneError> {
+    toml::from_str(text).map_err(|e| SceneError::Parse {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// The name and camera loop of a built-in scene, a `.toml` scene file or a `.glb`/`.gltf`
+/// file, in the coordinates the file gives (world space, not render space) — what a
+/// client flying the scene's loop needs. A TOML scene's meshes are not loaded (its glTF
+/// files need not exist here) and its other sections are not checked; a bare glTF file's
+/// loop follows its bounds, so its triangles are read.
+pub fn load_camera_path(name_or_path: &str) -> Result<(String, CameraPath), SceneError> {
+    let (name, camera) = match Source::find(name_or_path)? {
+        Source::Toml { text, path, .. } => {
+            let c: NameAndCamera = parse(&text, &path)?;
+            (c.name, c.camera)
+        }
+        Source::Gltf(path) => {
+            let desc = gltf_load::default_desc_for(path)?;
+            (desc.name, desc.camera)
+        }
+    };
+    camera.validate()?;
+    Ok((name, camera))
+}
+
+impl Scene {
+    /// Loads a built-in scene by name, a `.toml` scene file, or a `.glb`/`.gltf` file
+    /// (which gets a default sun, fog and camera path around its bounds).
+    pub fn load(name_or_path: &str) -> Result<Scene, SceneError> {
+        match Source::find(name_or_path)? {
+            Source::Toml {
+                text,
+                path,
+                base_dir,
+            } => Scene::from_desc(parse(&text, &path)?, &base_dir),
+            Source::Gltf(path) => {
+                Scene::from_desc(gltf_load::default_desc_for(path)?, Path::new("."))
+            }
+        }
     }
 
     /// Parses and validates TOML text; relative mesh paths resolve against `path`'s folder.
     pub fn from_toml(text: &str, path: &Path) -> Result<Scene, SceneError> {
-        let desc: SceneDesc = toml::from_str(text).map_err(|e| SceneError::Parse {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
         let base = path.parent().unwrap_or(Path::new("."));
-        Scene::from_desc(desc, base)
+        Scene::from_desc(parse(text, path)?, base)
     }
 
     /// Validates a description and moves it to render space.
@@ -152,4 +214,49 @@ fn rank_lights(
     keep.sort_unstable();
     let dropped = placed.len() - MAX_LIGHTS;
     (keep.into_iter().map(|i| placed[i]).collect(), dropped)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn camera_paths_are_read_without_meshes_in_file_coordinates() {
+        // The built-in loop is the loaded scene's, before the move to render space.
+        let scene = Scene::load("colonnade").unwrap();
+        let (name, world) = load_camera_path("colonnade").unwrap();
+        assert_eq!(name, "colonnade");
+        assert_ne!(
+            scene.origin,
+            glam::DVec3::ZERO,
+            "a test of the move needs one"
+        );
+        for (w, r) in world.path.iter().zip(&scene.camera.path) {
+            let moved = Vec3::from(*w).as_dvec3() - scene.origin;
+            assert!(
+                moved.distance(Vec3::from(*r).as_dvec3()) < 1e-5,
+                "{w:?} vs {r:?}"
+            );
+        }
+        // A TOML scene whose glTF is not on this machine still has its loop.
+        let dir = std::env::temp_dir().join(format!("fogcast-camera-path-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("far.toml");
+        std::fs::write(
+            &file,
+            "name = \"far\"\n[camera]\npath = [[1.0, 2.0, 3.0], [4.0, 2.0, 3.0]]\n\
+             [[mesh]]\nkind = \"gltf\"\npath = \"missing.glb\"\n",
+        )
+        .unwrap();
+        let file = file.to_str().unwrap();
+        let e = Scene::load(file).unwrap_err().to_string();
+        assert!(e.contains("missing.glb"), "{e}");
+        let (name, path) = load_camera_path(file).unwrap();
+        assert_eq!((name.as_str(), path.path.len()), ("far", 2));
+        // The loop itself is still checked.
+        std::fs::write(file, "name = \"x\"\n[camera]\npath = []\n").unwrap();
+        let e = load_camera_path(file).unwrap_err().to_string();
+        assert!(e.contains("camera.path"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -30,6 +30,7 @@ pub use error::SceneError;
 pub use format::{
     LightDesc, MediumDesc, MediumKind, MeshDesc, Noise, RenderDefaults, SceneDesc, SwingDesc,
 };
+pub use load::load_camera_path;
 pub use media::{density_at, hg_phase, sample_media, MediumSample};
 pub use mesh::TriangleMesh;
 pub use mover::{movers_mesh_at, Mover, MoverDesc};

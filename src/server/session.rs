@@ -601,7 +601,7 @@ fn handle_text(
         ClientMessage::Pose(p) => {
             let spec = session.view().spec;
             let poses = check_pose(&spec, &p)?;
-            session.set_poses(p.seq, poses);
+            session.set_poses(p.seq, poses, hub.scene.origin);
             Ok(None)
         }
         ClientMessage::Configure(c) => {

@@ -247,7 +247,7 @@ impl SessionSpec {
 /// A validated pose: position, rotation, field of view.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct CheckedPose {
-    /// Position, metres.
+    /// Position in the scene file's coordinates (world space), metres.
     pub(crate) position: DVec3,
     /// Unit rotation.
     pub(crate) rotation: DQuat,
@@ -297,10 +297,11 @@ impl CheckedPose {
         })
     }
 
-    /// The pose seen by a camera at `c` (inverse of [`CheckedPose::camera`], roll-free).
-    pub(crate) fn from_camera(c: &Camera) -> CheckedPose {
+    /// The pose of a camera at `c` in a scene whose render space starts at world point
+    /// `origin` (inverse of [`CheckedPose::camera`], roll-free).
+    pub(crate) fn from_camera(c: &Camera, origin: DVec3) -> CheckedPose {
         CheckedPose {
-            position: c.position.as_dvec3(),
+            position: c.position.as_dvec3() + origin,
             rotation: c.orientation(),
             fov_y: c.fov_y as f64,
         }
@@ -315,10 +316,12 @@ impl CheckedPose {
         }
     }
 
-    /// A camera at this pose, moved `offset_m` along its right vector (stereo eyes).
-    pub(crate) fn camera(&self, offset_m: f64) -> Camera {
+    /// A camera at this pose, moved `offset_m` along its right vector (stereo eyes), in
+    /// the render space that starts at world point `origin` (the move is made in f64, so
+    /// a scene far from the world origin keeps its precision).
+    pub(crate) fn camera(&self, offset_m: f64, origin: DVec3) -> Camera {
         let right = self.rotation * DVec3::X;
-        let pos = self.position + right * offset_m;
+        let pos = self.position + right * offset_m - origin;
         let forward = self.rotation * DVec3::NEG_Z;
         Camera::new(
             pos.as_vec3(),
@@ -328,14 +331,18 @@ impl CheckedPose {
     }
 }
 
-/// Cameras for every view of `spec` from the session's poses (stereo: 1 head → 2 eyes).
-pub(crate) fn cameras_for(spec: &SessionSpec, poses: &[CheckedPose]) -> Vec<Camera> {
+/// Render-space cameras for every view of `spec` from the session's poses (stereo: 1
+/// head → 2 eyes); `origin` is the world point where the scene's render space starts.
+pub(crate) fn cameras_for(spec: &SessionSpec, poses: &[CheckedPose], origin: DVec3) -> Vec<Camera> {
     match spec.layout {
         Layout::Stereo => {
             let half = spec.eye_distance_m * 0.5;
-            vec![poses[0].camera(-half), poses[0].camera(half)]
+            vec![
+                poses[0].camera(-half, origin),
+                poses[0].camera(half, origin),
+            ]
         }
-        _ => poses.iter().map(|p| p.camera(0.0)).collect(),
+        _ => poses.iter().map(|p| p.camera(0.0, origin)).collect(),
     }
 }
 
@@ -480,14 +487,19 @@ mod tests {
             );
         }
         let cam = Camera::new(Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.3, -0.2, -1.0), 1.0);
-        let back = CheckedPose::from_camera(&cam).camera(0.0);
+        // Poses are in world space; cameras in the render space that starts at `origin`
+        // (a scene 10⁵ m out keeps its precision: the move is made in f64).
+        let origin = DVec3::new(1.0e5, -4.0, 0.0);
+        let pose = CheckedPose::from_camera(&cam, origin);
+        assert_eq!(pose.position, DVec3::new(1.0e5 + 1.0, -2.0, 3.0));
+        let back = pose.camera(0.0, origin);
         assert!(
             back.forward.distance(cam.forward) < 1e-5
                 && back.position.distance(cam.position) < 1e-5
         );
         let spec =
             SessionSpec::validate(64, 32, Layout::Stereo, None, None, Some(0.5), &LIMITS).unwrap();
-        let eyes = cameras_for(&spec, &[CheckedPose::from_camera(&cam)]);
+        let eyes = cameras_for(&spec, &[pose], origin);
         assert!((eyes[0].position.distance(eyes[1].position) - 0.5).abs() < 1e-5);
     }
 }
