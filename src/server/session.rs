@@ -378,7 +378,12 @@ fn welcome(hub: &Hub, session: &SessionShared) -> String {
         eye_distance_m: v.spec.eye_distance_m,
         fps: c.fps,
         header_bytes: FRAME_HEADER_BYTES,
-        poses: v.poses.iter().map(CheckedPose::to_view_pose).collect(),
+        poses: v
+            .poses
+            .iter()
+            .copied()
+            .map(CheckedPose::to_view_pose)
+            .collect(),
         limits: Limits {
             max_message_bytes: c.max_message_bytes,
             max_messages_per_s: c.max_messages_per_s,

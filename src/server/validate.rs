@@ -308,7 +308,7 @@ impl CheckedPose {
     }
 
     /// The pose as sent on the wire.
-    pub(crate) fn to_view_pose(&self) -> ViewPose {
+    pub(crate) fn to_view_pose(self) -> ViewPose {
         ViewPose {
             position: self.position.to_array(),
             orientation: self.rotation.to_array(),
