@@ -53,7 +53,8 @@ test: deps
 	$(CARGO) test -- --test-threads=1
 
 # Load test: `fogcast serve` on a free loopback port and the default `fogcast loadgen`
-# sweep (1..16 viewers) against it; report in out/loadtest/ (docs/loadtest.md).
+# sweep (1..16 viewers) against it, then the mixed-size sweep; reports in out/loadtest/
+# and out/loadtest/mixed/ (docs/loadtest.md).
 .PHONY: loadtest
 loadtest: deps-runtime build
 	@SCENE=$(SCENE) bash scripts/loadtest.sh

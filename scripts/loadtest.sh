@@ -1,11 +1,15 @@
 #!/usr/bin/env bash
 # `make loadtest`: starts `fogcast serve` on a free loopback port, waits for /healthz,
-# runs the default `fogcast loadgen` sweep (1 to 16 viewers) into out/loadtest/, and
-# stops the server whatever happens (trap). docs/loadtest.md explains the numbers.
+# runs the default `fogcast loadgen` sweep (1 to 16 viewers, all at one size) into
+# out/loadtest/, then the mixed-size sweep (`--sweep mixed`: a third of the viewers at
+# each of 320x180, 480x270 and 640x360) into out/loadtest/mixed/, and stops the server
+# whatever happens (trap). docs/loadtest.md explains the numbers.
 #
 # Knobs (environment): SCENE (colonnade), LOADTEST_VIEWERS (1,2,4,8,12,16),
-# LOADTEST_SECONDS (20), LOADGEN_ARGS (more loadgen flags), SERVE_ARGS (more serve
-# flags), OUT (out/loadtest), FOGCAST (./target/release/fogcast).
+# LOADTEST_SECONDS (20), LOADGEN_ARGS (more loadgen flags, first sweep),
+# LOADTEST_MIXED (1; 0 skips the mixed sweep), MIXED_ARGS (more loadgen flags, mixed
+# sweep), SERVE_ARGS (more serve flags), OUT (out/loadtest), FOGCAST
+# (./target/release/fogcast).
 set -euo pipefail
 
 bin=${FOGCAST:-./target/release/fogcast}
@@ -73,4 +77,10 @@ echo "loadtest: server at $url (started in $(( $(date +%s) - started )) s): $hea
 
 # shellcheck disable=SC2086 # LOADGEN_ARGS is a list of flags
 "$bin" loadgen --url "ws://$hostport/ws" --viewers "$viewers" --seconds "$seconds" --out "$out" ${LOADGEN_ARGS:-}
-echo "loadtest: done in $(( $(date +%s) - started )) s; report: $out/loadgen.md" >&2
+reports="$out/loadgen.md"
+if [ "${LOADTEST_MIXED:-1}" != 0 ]; then
+  # shellcheck disable=SC2086 # MIXED_ARGS is a list of flags
+  "$bin" loadgen --url "ws://$hostport/ws" --sweep mixed --seconds "$seconds" --out "$out/mixed" ${MIXED_ARGS:-}
+  reports="$reports, $out/mixed/loadgen.md"
+fi
+echo "loadtest: done in $(( $(date +%s) - started )) s; reports: $reports" >&2

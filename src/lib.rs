@@ -8,6 +8,8 @@
 //! - [`render`]: the froxel pipeline (`reference` and `shared` modes).
 //! - [`bench`]: `fogcast bench`, how each cost grows with the number of viewers.
 //! - [`metrics`]: image error (FLIP, PSNR, RMSE).
+//! - [`protocol`]: the viewer protocol's wire types (messages, frame header), shared by
+//!   the server and its clients.
 //! - [`server`]: `fogcast serve`, streaming every viewer's frames to browsers over WebSocket.
 //! - [`settings_overrides`]: renderer settings given by flags or a config file's keys.
 //! - [`truth`]: the CPU ground-truth renderer every error is measured against.
@@ -22,6 +24,7 @@ pub mod gpu;
 pub mod loadgen;
 pub mod metrics;
 pub mod output;
+pub mod protocol;
 pub mod render;
 pub mod report;
 pub mod scene;

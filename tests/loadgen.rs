@@ -1,11 +1,12 @@
 //! `fogcast loadgen` against a real server: two WebSocket viewers for a few seconds get
 //! frames, finite ordered latency percentiles and bytes; the report files are written;
-//! an unreachable server, a refused hello and a sweep over the server's view limit give
+//! a mixed sweep (three frame sizes at once) serves every size and reports each; an
+//! unreachable server, a refused hello and a sweep over the server's view limit give
 //! errors that say so. No timing assertions (DESIGN.md §7).
 
 mod server_support;
 
-use fogcast::loadgen::{run, write_report, LoadgenConfig};
+use fogcast::loadgen::{run, write_report, FrameSize, LoadgenConfig};
 use fogcast::server::ServerConfig;
 use server_support::*;
 
@@ -16,8 +17,10 @@ fn config_for(addr: std::net::SocketAddr) -> LoadgenConfig {
         seconds: 3.0,
         warmup_s: 0.5,
         pose_hz: 20.0,
-        width: 64,
-        height: 36,
+        sizes: vec![FrameSize {
+            width: 64,
+            height: 36,
+        }],
         ..LoadgenConfig::default()
     }
 }
@@ -133,6 +136,80 @@ async fn two_viewers_get_frames_latency_and_bytes() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mixed_sweep_serves_and_reports_every_size() {
+    let server = start(test_config()).await;
+    let size = |width, height| FrameSize { width, height };
+    let sizes = vec![size(64, 36), size(96, 54), size(128, 72)];
+    let config = LoadgenConfig {
+        viewers: vec![3],
+        sizes: sizes.clone(),
+        seconds: 2.0,
+        ..config_for(server.local_addr())
+    };
+    let report = run(&config, "test", &|line| eprintln!("{line}"))
+        .await
+        .expect("loadgen runs");
+    let p = &report.points[0];
+    assert_eq!((p.viewers, p.sessions), (3, 3));
+    assert_eq!(
+        p.sizes
+            .iter()
+            .map(|z| (z.size, z.sessions, z.views))
+            .collect::<Vec<_>>(),
+        sizes.iter().map(|&s| (s, 1, 1)).collect::<Vec<_>>(),
+        "a third of the sessions at each size"
+    );
+    for z in &p.sizes {
+        let s = &z.summary;
+        assert!(
+            s.frames_total > 0 && s.fps_mean > 0.0,
+            "{}: no frames {s:?}",
+            z.size
+        );
+        assert!(s.latency.is_some_and(|l| l.samples > 0), "{}", z.size);
+        assert_eq!(s.bad_frames, 0, "{}: frames of another size", z.size);
+    }
+    let mut seen: Vec<FrameSize> = p.per_viewer.iter().map(|v| v.size).collect();
+    seen.sort_by_key(|s| s.width);
+    assert_eq!(seen, sizes, "each viewer reports its size");
+    let s = &p.server;
+    assert_eq!(s.viewers, 3, "{s:?}");
+    assert!(s.render_calls_per_frame > 0.0, "{s:?}");
+    assert!(
+        s.grid_rays_per_frame > 0.0
+            && (s.grid_rays_per_frame - s.render_calls_per_frame * s.grid_rays_per_render_call)
+                .abs()
+                <= 1e-6 * s.grid_rays_per_frame,
+        "grid rays per frame and per render call scraped: {s:?}"
+    );
+    assert_eq!(server.counts(), (0, 0));
+
+    let out = std::env::temp_dir().join(format!("fogcast-loadgen-mixed-{}", std::process::id()));
+    write_report(&report, &out).expect("report written");
+    let md = std::fs::read_to_string(out.join("loadgen.md")).unwrap();
+    for want in [
+        "mono frames at 64x36, 96x54 and 128x72",
+        "## Per frame size",
+        "| 96x54 |",
+        "sessions per size",
+        "grid rays/frame",
+    ] {
+        assert!(md.contains(want), "loadgen.md lacks {want:?}:\n{md}");
+    }
+    let csv = std::fs::read_to_string(out.join("loadgen.csv")).unwrap();
+    assert!(csv.lines().next().unwrap().contains(",size,"), "{csv}");
+    assert!(csv.contains(",128x72,"), "{csv}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("loadgen.json")).unwrap()).unwrap();
+    let point = &json["points"][0];
+    assert_eq!(point["sizes"][1]["size"]["width"], 96);
+    assert!(point["sizes"][2]["summary"]["fps_mean"].is_number());
+    assert!(point["server"]["grid_rays_per_frame"].is_number());
+    std::fs::remove_dir_all(&out).unwrap();
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn errors_name_the_problem() {
     // Nobody listens on a port that was just released.
     let free = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
@@ -151,7 +228,7 @@ async fn errors_name_the_problem() {
     };
     assert!(format!("{:#}", bad.validate().unwrap_err()).contains("http"));
     let odd = LoadgenConfig {
-        layout: fogcast::server::protocol::Layout::Stereo,
+        layout: fogcast::protocol::Layout::Stereo,
         viewers: vec![3],
         ..LoadgenConfig::default()
     };

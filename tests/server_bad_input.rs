@@ -316,11 +316,11 @@ async fn bad_input_gets_clear_errors_and_other_viewers_keep_streaming() {
     let mut warned = false;
     let fatal = loop {
         match next_text_or_close(&mut ws).await {
-            Some(fogcast::server::protocol::ServerMessage::Error(e)) if !e.fatal => {
+            Some(fogcast::protocol::ServerMessage::Error(e)) if !e.fatal => {
                 assert_eq!(e.code.as_str(), "rate_limited");
                 warned = true;
             }
-            Some(fogcast::server::protocol::ServerMessage::Error(e)) => break e,
+            Some(fogcast::protocol::ServerMessage::Error(e)) => break e,
             Some(_) => {}
             None => panic!("closed without a fatal error"),
         }
@@ -377,7 +377,7 @@ async fn bad_input_gets_clear_errors_and_other_viewers_keep_streaming() {
 }
 
 /// Next text message, `None` at the close frame or end of stream.
-async fn next_text_or_close(ws: &mut Ws) -> Option<fogcast::server::protocol::ServerMessage> {
+async fn next_text_or_close(ws: &mut Ws) -> Option<fogcast::protocol::ServerMessage> {
     use futures_util::StreamExt as _;
     loop {
         match tokio::time::timeout(PATIENCE, ws.next())

@@ -5,7 +5,7 @@
 
 mod server_support;
 
-use fogcast::server::protocol::{ErrorMessage, ServerMessage, Welcome};
+use fogcast::protocol::{ErrorMessage, ServerMessage, Welcome};
 use fogcast::server::ServerConfig;
 use futures_util::StreamExt as _;
 use server_support::*;

@@ -4,7 +4,7 @@
 
 mod server_support;
 
-use fogcast::server::protocol::{FrameHeader, ServerMessage};
+use fogcast::protocol::{FrameHeader, ServerMessage};
 use futures_util::{SinkExt as _, StreamExt as _};
 use server_support::*;
 use tokio_tungstenite::tungstenite::Message;

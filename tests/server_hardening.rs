@@ -6,7 +6,7 @@
 
 mod server_support;
 
-use fogcast::server::protocol::ServerMessage;
+use fogcast::protocol::ServerMessage;
 use fogcast::server::ServerConfig;
 use server_support::*;
 use std::net::SocketAddr;

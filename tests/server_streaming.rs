@@ -3,7 +3,7 @@
 
 mod server_support;
 
-use fogcast::server::protocol::{Layout, ViewPose, FRAME_HEADER_BYTES};
+use fogcast::protocol::{Layout, ViewPose, FRAME_HEADER_BYTES};
 use server_support::*;
 use std::time::Duration;
 
@@ -21,6 +21,11 @@ async fn sixteen_mono_viewers_all_receive_frames() {
         "the browser client is served at /"
     );
 
+    // Poses on the wire are in the scene file's coordinates: a new session stands on
+    // the file's camera loop (the server renders in a space moved by the scene's origin).
+    let (_, camera) = fogcast::scene::load_camera_path("colonnade").unwrap();
+    let heights = camera.path.iter().map(|p| f64::from(p[1]));
+    let (low, high) = heights.fold((f64::MAX, f64::MIN), |(a, b), y| (a.min(y), b.max(y)));
     let mut clients = Vec::new();
     for _ in 0..16 {
         let mut ws = connect(addr).await;
@@ -28,6 +33,12 @@ async fn sixteen_mono_viewers_all_receive_frames() {
         assert_eq!(
             (w.layout, w.views, w.width, w.height, w.header_bytes),
             (Layout::Mono, 1, 64, 36, FRAME_HEADER_BYTES)
+        );
+        let y = w.poses[0].position[1];
+        assert!(
+            (low - 1e-3..=high + 1e-3).contains(&y),
+            "welcome pose {:?} is not on the file's camera loop (heights {low}..{high})",
+            w.poses[0]
         );
         clients.push(ws);
     }
@@ -176,12 +187,11 @@ async fn stereo_and_split_sessions_tile_their_views() {
     )
     .await;
 
-    let frame_with_seq =
-        |seq: u32| move |h: &fogcast::server::protocol::FrameHeader| h.pose_seq == seq;
+    let frame_with_seq = |seq: u32| move |h: &fogcast::protocol::FrameHeader| h.pose_seq == seq;
     async fn wait_for(
         ws: &mut Ws,
-        ok: impl Fn(&fogcast::server::protocol::FrameHeader) -> bool,
-    ) -> (fogcast::server::protocol::FrameHeader, image::RgbImage) {
+        ok: impl Fn(&fogcast::protocol::FrameHeader) -> bool,
+    ) -> (fogcast::protocol::FrameHeader, image::RgbImage) {
         for _ in 0..100 {
             let (h, jpeg) = next_frame(ws).await;
             if ok(&h) {

@@ -3,7 +3,9 @@
 //! header). Statistics are computed afterwards from the records (`super::stats`).
 
 use super::paths::Paths;
-use crate::server::protocol::{FrameHeader, ServerMessage, ViewPose, Welcome};
+use crate::protocol::{
+    clip, ClientMessage, FrameHeader, Hello, PoseUpdate, ServerMessage, ViewPose, Welcome,
+};
 use anyhow::Context as _;
 use futures_util::{SinkExt as _, StreamExt as _};
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
@@ -55,10 +57,7 @@ impl Target {
 }
 
 /// Opens a session: WebSocket handshake, hello, welcome. Errors say what the server said.
-pub(crate) async fn open(
-    target: &Target,
-    hello: &serde_json::Value,
-) -> anyhow::Result<(Ws, Welcome)> {
+pub(crate) async fn open(target: &Target, hello: &Hello) -> anyhow::Result<(Ws, Welcome)> {
     let url = &target.ws_url;
     let (mut ws, _) = match tokio::time::timeout(
         HANDSHAKE_TIMEOUT,
@@ -87,7 +86,7 @@ pub(crate) async fn open(
         ),
         Ok(Err(e)) => return Err(e).with_context(|| format!("connecting to {url}")),
     };
-    ws.send(Message::text(hello.to_string()))
+    ws.send(Message::text(ClientMessage::Hello(hello.clone()).to_json()))
         .await
         .with_context(|| format!("{url}: sending the hello"))?;
     let answer = tokio::time::timeout(HANDSHAKE_TIMEOUT, async {
@@ -221,7 +220,7 @@ pub(crate) async fn stream(
                 Some(Ok(Message::Text(t))) => match serde_json::from_str::<ServerMessage>(&t) {
                     Ok(ServerMessage::Error(e)) => rec.server_errors.push(format!("{}: {}", e.code.as_str(), e.message)),
                     Ok(ServerMessage::Welcome(_)) => {}
-                    Err(_) => rec.server_errors.push(format!("unreadable server message: {}", crate::server::protocol::clip(&t))),
+                    Err(_) => rec.server_errors.push(format!("unreadable server message: {}", clip(&t))),
                 },
                 Some(Ok(Message::Close(c))) => {
                     ended = Some(format!(
@@ -240,9 +239,9 @@ pub(crate) async fn stream(
                 let views: Vec<ViewPose> = welcome.poses.iter().enumerate()
                     .map(|(j, start)| flight.paths.pose(flight.first_slot + j, flight.slots, t, start))
                     .collect();
-                let msg = serde_json::json!({"type": "pose", "seq": seq, "views": views});
+                let msg = ClientMessage::Pose(PoseUpdate { seq, views });
                 rec.pose_sent.push(Instant::now());
-                if let Err(e) = ws.send(Message::text(msg.to_string())).await {
+                if let Err(e) = ws.send(Message::text(msg.to_json())).await {
                     ended = Some(format!("sending a pose failed: {e}"));
                     break;
                 }

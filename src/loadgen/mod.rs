@@ -2,7 +2,9 @@
 //! viewers and measure what each of them gets (`docs/loadtest.md`).
 //!
 //! For each point of the sweep (a number of views), loadgen opens the sessions (hello →
-//! welcome, `docs/protocol.md`), lets every viewer fly its own camera path sending poses
+//! welcome, `docs/protocol.md`) — all at one frame size, or split as evenly as possible
+//! over several (a mixed sweep, [`MIXED_SWEEP_SIZES`]) — lets every viewer fly its own
+//! camera path sending poses
 //! at a fixed rate, waits until every viewer has frames and a warm-up has passed, then
 //! measures a fixed window:
 //!
@@ -12,8 +14,10 @@
 //!   (the header's per-session counter) and render-loop frames it missed (gaps in the
 //!   header's frame number), the longest gap between frames, and frames per second of
 //!   the window (the timeline that shows a viewer was served the whole time);
+//! - per frame size: the same over the viewers of that size;
 //! - on the server: the deltas of `/metrics` over the window (render-loop fps, frame,
-//!   render and encode ms, GPU ms per stage, rays per frame, bytes sent, drops, memory).
+//!   render and encode ms, GPU ms per stage, rays per frame — the shared grid's among
+//!   them — render calls per frame, bytes sent, drops, memory).
 //!
 //! Then it closes the sessions, waits for the server to let them go, and goes on to the
 //! next point. [`run`] does the sweep, [`write_report`] writes loadgen.json, .csv, .md
@@ -26,10 +30,10 @@ mod paths;
 mod scrape;
 mod stats;
 
-pub use cli::{loadgen, LayoutArg, LoadgenArgs};
+pub use cli::{loadgen, LayoutArg, LoadgenArgs, SweepArg};
 pub use output::write_report;
 
-use crate::server::protocol::{Layout, MAX_SPLIT_VIEWS};
+use crate::protocol::{Hello, Layout, MAX_SPLIT_VIEWS, PROTOCOL_VERSION};
 use anyhow::Context as _;
 use client::{Flight, Live, Target};
 use paths::Paths;
@@ -39,6 +43,64 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
+
+/// A frame size a session asks for, written `WIDTHxHEIGHT` (`320x180`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct FrameSize {
+    /// Frame width, pixels.
+    pub width: u32,
+    /// Frame height, pixels.
+    pub height: u32,
+}
+
+impl std::fmt::Display for FrameSize {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}x{}", self.width, self.height)
+    }
+}
+
+impl std::str::FromStr for FrameSize {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<FrameSize, String> {
+        let bad = || format!("frame size {s:?}: write WIDTHxHEIGHT, e.g. 320x180");
+        let (w, h) = s.trim().split_once(['x', 'X']).ok_or_else(bad)?;
+        Ok(FrameSize {
+            width: w.trim().parse().map_err(|_| bad())?,
+            height: h.trim().parse().map_err(|_| bad())?,
+        })
+    }
+}
+
+/// Frame size of every session in a uniform sweep, unless told otherwise.
+pub const DEFAULT_SIZE: FrameSize = FrameSize {
+    width: 256,
+    height: 144,
+};
+
+/// Points of a uniform sweep, unless told otherwise.
+pub const DEFAULT_VIEWERS: [usize; 4] = [1, 4, 8, 16];
+
+/// The mixed sweep's frame sizes (`--sweep mixed`): three 16:9 sizes a browser client
+/// might ask for, a third of the sessions at each.
+pub const MIXED_SWEEP_SIZES: [FrameSize; 3] = [
+    FrameSize {
+        width: 320,
+        height: 180,
+    },
+    FrameSize {
+        width: 480,
+        height: 270,
+    },
+    FrameSize {
+        width: 640,
+        height: 360,
+    },
+];
+
+/// The mixed sweep's points: multiples of three views, so each size gets exactly a third,
+/// up to the server's default limit of 16 views.
+pub const MIXED_SWEEP_VIEWERS: [usize; 5] = [3, 6, 9, 12, 15];
 
 /// What to load and how.
 #[derive(Debug, Clone, Serialize)]
@@ -56,10 +118,9 @@ pub struct LoadgenConfig {
     pub first_frame_timeout_s: f64,
     /// Pose messages each session sends per second.
     pub pose_hz: f64,
-    /// Frame width each session asks for (the whole frame: both eyes, all tiles).
-    pub width: u32,
-    /// Frame height each session asks for.
-    pub height: u32,
+    /// Frame sizes the sessions ask for (the whole frame: both eyes, all tiles): each
+    /// point's sessions take them in turn, so they split as evenly as possible.
+    pub sizes: Vec<FrameSize>,
     /// JPEG quality each session asks for.
     pub quality: u8,
     /// Session layout.
@@ -77,13 +138,12 @@ impl Default for LoadgenConfig {
     fn default() -> Self {
         LoadgenConfig {
             url: "ws://127.0.0.1:8080/ws".into(),
-            viewers: vec![1, 4, 8, 16],
+            viewers: DEFAULT_VIEWERS.to_vec(),
             seconds: 10.0,
             warmup_s: 3.0,
             first_frame_timeout_s: 120.0,
             pose_hz: 30.0,
-            width: 256,
-            height: 144,
+            sizes: vec![DEFAULT_SIZE],
             quality: 75,
             layout: Layout::Mono,
             split_views: 2,
@@ -143,11 +203,19 @@ impl LoadgenConfig {
             );
         }
         anyhow::ensure!(
-            (16..=8192).contains(&self.width) && (16..=8192).contains(&self.height),
-            "--width {} --height {}: each must be 16..=8192 (the server has its own, usually lower, limits)",
-            self.width,
-            self.height
+            !self.sizes.is_empty(),
+            "--mix: give at least one frame size, e.g. 320x180,480x270,640x360"
         );
+        for (i, s) in self.sizes.iter().enumerate() {
+            anyhow::ensure!(
+                (16..=8192).contains(&s.width) && (16..=8192).contains(&s.height),
+                "frame size {s}: width and height must each be 16..=8192 (the server has its own, usually lower, limits)"
+            );
+            anyhow::ensure!(
+                !self.sizes[..i].contains(s),
+                "--mix: {s} is given twice; list each size once"
+            );
+        }
         anyhow::ensure!(
             (1..=100).contains(&self.quality),
             "--quality {}: must be 1..=100",
@@ -156,18 +224,22 @@ impl LoadgenConfig {
         Ok(())
     }
 
-    fn hello(&self) -> serde_json::Value {
-        let mut h = serde_json::json!({
-            "type": "hello", "version": 1, "width": self.width, "height": self.height,
-            "layout": self.layout, "quality": self.quality,
-        });
-        if self.layout == Layout::Split {
-            h["views"] = self.split_views.into();
+    /// Frame size of session `i` of a point: the sizes in turn.
+    fn size_of_session(&self, i: usize) -> FrameSize {
+        self.sizes[i % self.sizes.len()]
+    }
+
+    fn hello(&self, size: FrameSize) -> Hello {
+        Hello {
+            version: PROTOCOL_VERSION,
+            width: size.width,
+            height: size.height,
+            layout: self.layout,
+            views: (self.layout == Layout::Split).then_some(self.split_views),
+            quality: Some(self.quality),
+            eye_distance_m: None,
+            token: self.token.clone(),
         }
-        if let Some(t) = &self.token {
-            h["token"] = t.clone().into();
-        }
-        h
     }
 }
 
@@ -197,6 +269,8 @@ pub struct ViewerStats {
     pub session: u64,
     /// Views of the session.
     pub views: u32,
+    /// Frame size the session asked for.
+    pub size: FrameSize,
     /// Frames received.
     pub frames: u64,
     /// Frames received per second.
@@ -295,6 +369,16 @@ pub struct ServerStats {
     pub stage_gpu_ms: BTreeMap<String, f64>,
     /// Shadow rays traced per render-loop frame, per stage.
     pub rays_per_frame: BTreeMap<String, f64>,
+    /// Batched render calls per render-loop frame (one per view size with a renderer
+    /// that renders each size separately).
+    pub render_calls_per_frame: f64,
+    /// Rays traced into the shared world-space shadow grid per render-loop frame
+    /// (`fogcast_rays_traced_total{stage="shared_grid"}` over `fogcast_frames_total`):
+    /// one grid's worth when the grid is shared by every view size, that times the
+    /// number of sizes when each size's render call fills its own.
+    pub grid_rays_per_frame: f64,
+    /// Grid rays per render call.
+    pub grid_rays_per_render_call: f64,
     /// Session frames encoded.
     pub frames_encoded: u64,
     /// Session frames written to sockets.
@@ -315,6 +399,19 @@ pub struct ServerStats {
     pub resident_memory_mib: f64,
 }
 
+/// The viewers of one frame size within a sweep point.
+#[derive(Debug, Clone, Serialize)]
+pub struct SizeResult {
+    /// The frame size.
+    pub size: FrameSize,
+    /// Sessions of this size.
+    pub sessions: usize,
+    /// Views of those sessions.
+    pub views: usize,
+    /// Over those viewers only (latency pooled over their samples).
+    pub summary: PointSummary,
+}
+
 /// One sweep point.
 #[derive(Debug, Clone, Serialize)]
 pub struct PointResult {
@@ -331,6 +428,8 @@ pub struct PointResult {
     pub load_average_1m: Option<f64>,
     /// Over all viewers.
     pub summary: PointSummary,
+    /// Per frame size, in the order of the config's sizes (those that had sessions).
+    pub sizes: Vec<SizeResult>,
     /// The server's numbers.
     pub server: ServerStats,
     /// Each viewer.
@@ -394,7 +493,7 @@ pub async fn run(
     }
     let paths = Arc::new(paths);
     progress(&format!(
-        "loadgen: {} — scene {:?}, up to {} views; sweep {:?} views, {} s each after {} s warm-up, poses at {} Hz, {}x{} {:?} q{}",
+        "loadgen: {} — scene {:?}, up to {} views; sweep {:?} views, {} s each after {} s warm-up, poses at {} Hz, {} {:?} q{}",
         config.url,
         health.scene,
         health.max_viewers,
@@ -402,8 +501,7 @@ pub async fn run(
         config.seconds,
         config.warmup_s,
         config.pose_hz,
-        config.width,
-        config.height,
+        size_list(&config.sizes),
         config.layout,
         config.quality
     ));
@@ -438,16 +536,17 @@ async fn run_point(
     let baseline = scrape::metrics(&target.authority)
         .await?
         .get("fogcast_sessions", "");
+    let size_of: Vec<FrameSize> = (0..sessions).map(|i| config.size_of_session(i)).collect();
     progress(&format!(
-        "loadgen: {views} views: opening {sessions} sessions"
+        "loadgen: {views} views: opening {sessions} sessions ({})",
+        sessions_per_size(&config.sizes, &size_of)
     ));
-    let hello = config.hello();
     let opened_at = Instant::now();
     let mut opened = Vec::with_capacity(sessions);
-    for i in 0..sessions {
-        let (ws, welcome) = client::open(target, &hello)
+    for (i, size) in size_of.iter().enumerate() {
+        let (ws, welcome) = client::open(target, &config.hello(*size))
             .await
-            .with_context(|| format!("viewer {i} of {sessions}"))?;
+            .with_context(|| format!("viewer {i} of {sessions} ({size})"))?;
         opened.push((ws, welcome));
     }
     let slots_per_session = opened.first().map_or(1, |(_, w)| w.poses.len());
@@ -536,44 +635,46 @@ async fn run_point(
 
     let _ = stop_tx.send(true);
     let mut per_viewer = Vec::with_capacity(sessions);
-    let mut pooled = Vec::new();
+    let mut latencies = Vec::with_capacity(sessions);
     for (i, ((task, live), (session, views_of))) in
         tasks.into_iter().zip(&lives).zip(meta).enumerate()
     {
         let rec = task.await.context("a viewer task failed")?;
-        pooled.extend(stats::latencies(&rec, t0, t1));
+        latencies.push(stats::latencies(&rec, t0, t1));
         per_viewer.push(stats::viewer(
             i,
             session,
-            views_of,
+            (views_of, size_of[i]),
             &rec,
             (t0, t1),
             live.ended(),
         ));
     }
-    let summary = stats::summary(&per_viewer, pooled);
+    let summary = stats::summary(&per_viewer, latencies.concat());
+    let sizes = stats::per_size(&config.sizes, &per_viewer, &latencies);
     let server = scrape::server_stats(&before, &after);
-    let lat = summary
-        .latency
-        .map(|l| {
-            format!(
-                "p50 {:.0} / p95 {:.0} / p99 {:.0} ms",
-                l.p50_ms, l.p95_ms, l.p99_ms
-            )
-        })
-        .unwrap_or_else(|| "no latency samples".into());
     progress(&format!(
-        "loadgen: {views} views: {:.1} fps per viewer (min {:.1}), server {:.1} fps, latency {lat}, {:.0} KiB/s per viewer{}",
-        summary.fps_mean,
-        summary.fps_min,
+        "loadgen: {views} views: {}, server {:.1} fps, {:.1} render calls and {:.0} grid rays per frame{}",
+        describe(&summary),
         server.fps,
-        summary.bytes_per_s_per_viewer / 1024.0,
+        server.render_calls_per_frame,
+        server.grid_rays_per_frame,
         match (summary.every_viewer_every_second, summary.every_viewer_served_throughout) {
             (true, _) => "",
             (false, true) => "; some second had no frame (the server rendered under 1 fps then), but every viewer got every frame",
             (false, false) => "; SOME VIEWER WAS NOT SERVED THROUGHOUT",
         }
     ));
+    if sizes.len() > 1 {
+        for s in &sizes {
+            progress(&format!(
+                "loadgen: {views} views:   {} ({}): {}",
+                s.size,
+                sessions_count(s.sessions),
+                describe(&s.summary)
+            ));
+        }
+    }
 
     // Let the server release the sessions before the next point asks for views.
     let drained = tokio::time::timeout(DRAIN_TIMEOUT, async {
@@ -600,9 +701,59 @@ async fn run_point(
         window_s: t1.duration_since(t0).as_secs_f64(),
         load_average_1m,
         summary,
+        sizes,
         server,
         per_viewer,
     })
+}
+
+/// "fps per viewer (min), latency percentiles, bandwidth per viewer" of a summary.
+pub(crate) fn describe(s: &PointSummary) -> String {
+    let lat = s.latency.map_or_else(
+        || "no latency samples".into(),
+        |l| {
+            format!(
+                "latency p50 {:.0} / p95 {:.0} / p99 {:.0} ms",
+                l.p50_ms, l.p95_ms, l.p99_ms
+            )
+        },
+    );
+    format!(
+        "{:.1} fps per viewer (min {:.1}), {lat}, {:.0} KiB/s per viewer",
+        s.fps_mean,
+        s.fps_min,
+        s.bytes_per_s_per_viewer / 1024.0
+    )
+}
+
+/// "256x144", or "320x180, 480x270 and 640x360 (each point's sessions split evenly over
+/// them)".
+pub(crate) fn size_list(sizes: &[FrameSize]) -> String {
+    match sizes {
+        [one] => one.to_string(),
+        [rest @ .., last] => format!(
+            "{} and {last} (each point's sessions split evenly over them)",
+            rest.iter()
+                .map(FrameSize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        [] => String::new(),
+    }
+}
+
+/// "1 session", "2 sessions".
+pub(crate) fn sessions_count(n: usize) -> String {
+    format!("{n} session{}", if n == 1 { "" } else { "s" })
+}
+
+/// "320x180: 2, 480x270: 1" — the sessions of each size, in the order of `sizes`.
+fn sessions_per_size(sizes: &[FrameSize], size_of: &[FrameSize]) -> String {
+    sizes
+        .iter()
+        .map(|s| format!("{s}: {}", size_of.iter().filter(|t| *t == s).count()))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 struct StopOnDrop(watch::Sender<bool>);

@@ -1,8 +1,8 @@
 //! The loadgen report: loadgen.json (everything), loadgen.csv (one row per viewer per
-//! point), loadgen.md (tables) and PNG plots of fps, latency and the largest point's
-//! per-second timeline.
+//! point), loadgen.md (tables; per frame size too when the sweep mixes sizes) and PNG
+//! plots of fps, latency and the largest point's per-second timeline.
 
-use super::{Latency, LoadgenReport, PointResult};
+use super::{size_list, Latency, LoadgenReport, PointResult, PointSummary};
 use crate::report::{plot, Series, Table};
 use anyhow::Context as _;
 use std::path::{Path, PathBuf};
@@ -22,6 +22,14 @@ fn lat(l: &Option<Latency>, pick: fn(&Latency) -> f64) -> String {
 
 fn kib(bytes_per_s: f64) -> String {
     format!("{:.0}", bytes_per_s / 1024.0)
+}
+
+fn served(s: &PointSummary) -> String {
+    if s.every_viewer_served_throughout {
+        "yes".into()
+    } else {
+        format!("**no** ({} ended early)", s.viewers_ended_early)
+    }
 }
 
 /// Writes the report's files into `out` (created if missing); returns their paths.
@@ -49,6 +57,7 @@ fn viewer_table(points: &[PointResult]) -> Table {
         "views",
         "viewer",
         "session",
+        "size",
         "fps",
         "frames",
         "latency_p50_ms",
@@ -69,6 +78,7 @@ fn viewer_table(points: &[PointResult]) -> Table {
                 p.viewers.to_string(),
                 v.index.to_string(),
                 v.session.to_string(),
+                v.size.to_string(),
                 f1(v.fps),
                 v.frames.to_string(),
                 lat(&v.latency, |l| l.p50_ms),
@@ -100,11 +110,13 @@ fn markdown(r: &LoadgenReport) -> String {
     }
     md += &format!(
         "Server `{}`, scene `{}` (at most {} views). Machine: {}. The whole run took {:.0} s.\n\n\
-         Each session asks for {}×{} {:?} frames at JPEG quality {} and sends a pose {} times a second; \
+         Each session asks for {} frames at {}, JPEG quality {}, and sends a pose {} times a second; \
          camera paths: {}. Each point is measured for {} s after every viewer has frames and a {} s warm-up.\n\n",
-        c.url, r.scene, r.server_max_viewers, r.machine, r.duration_s, c.width, c.height, c.layout,
+        c.url, r.scene, r.server_max_viewers, r.machine, r.duration_s,
+        format!("{:?}", c.layout).to_lowercase(), size_list(&c.sizes),
         c.quality, c.pose_hz, r.camera_paths, c.seconds, c.warmup_s
     );
+    let mixed = c.sizes.len() > 1;
     md += "## Per point\n\nfps and bandwidth per viewer (one session); latency is pose-to-frame over every viewer's samples; \
            *dropped* are frames the server replaced or skipped for a session (its header counter), *missed* the \
            render-loop frames a session did not receive; *every second* says every viewer received frames in every \
@@ -112,8 +124,11 @@ fn markdown(r: &LoadgenReport) -> String {
            second or received every frame the server rendered (below 1 server fps some seconds have no frame for \
            anyone); *load avg* is this machine's 1-minute load average at the end of the window (other work competes \
            with the CPU renderer).\n\n";
-    let mut t = Table::new(&[
-        "views",
+    let mut headers = vec!["views"];
+    if mixed {
+        headers.push("sessions per size");
+    }
+    headers.extend([
         "fps/viewer mean",
         "min",
         "max",
@@ -131,10 +146,20 @@ fn markdown(r: &LoadgenReport) -> String {
         "served throughout",
         "load avg",
     ]);
+    let mut t = Table::new(&headers);
     for p in &r.points {
         let s = &p.summary;
-        t.push(vec![
-            p.viewers.to_string(),
+        let mut row = vec![p.viewers.to_string()];
+        if mixed {
+            row.push(
+                p.sizes
+                    .iter()
+                    .map(|z| format!("{}: {}", z.size, z.sessions))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            );
+        }
+        row.extend([
             f1(s.fps_mean),
             f1(s.fps_min),
             f1(s.fps_max),
@@ -153,19 +178,61 @@ fn markdown(r: &LoadgenReport) -> String {
             } else {
                 "no".into()
             },
-            if s.every_viewer_served_throughout {
-                "yes".into()
-            } else {
-                format!("**no** ({} ended early)", s.viewers_ended_early)
-            },
+            served(s),
             p.load_average_1m.map_or_else(|| "–".into(), f1),
         ]);
+        t.push(row);
     }
     md += &t.to_markdown();
 
+    if mixed {
+        md += "\n## Per frame size\n\nThe viewers of each size within each point: fps and bandwidth per viewer, \
+               latency over that size's samples.\n\n";
+        let mut t = Table::new(&[
+            "views",
+            "size",
+            "sessions",
+            "fps/viewer mean",
+            "min",
+            "max",
+            "latency p50 ms",
+            "p95 ms",
+            "p99 ms",
+            "KiB/s per viewer",
+            "dropped",
+            "missed",
+            "served throughout",
+        ]);
+        for p in &r.points {
+            for z in &p.sizes {
+                let s = &z.summary;
+                t.push(vec![
+                    p.viewers.to_string(),
+                    z.size.to_string(),
+                    z.sessions.to_string(),
+                    f1(s.fps_mean),
+                    f1(s.fps_min),
+                    f1(s.fps_max),
+                    lat(&s.latency, |l| l.p50_ms),
+                    lat(&s.latency, |l| l.p95_ms),
+                    lat(&s.latency, |l| l.p99_ms),
+                    kib(s.bytes_per_s_per_viewer),
+                    s.dropped_server_total.to_string(),
+                    s.missed_frames_total.to_string(),
+                    served(s),
+                ]);
+            }
+        }
+        md += &t.to_markdown();
+    }
+
     md += "\n## Server per point (`/metrics` over the window)\n\nframe: one render-loop iteration; render: one batched \
            render call, upload to readback; encode: compose + JPEG of one session frame; GPU ms per stage from \
-           timestamp queries; rays per frame over all stages.\n\n";
+           timestamp queries; rays per frame over all stages; *render calls/frame*: batched render calls per \
+           render-loop frame (one per view size while each size is rendered on its own); *grid rays/frame*: rays \
+           traced into the shared world-space shadow grid per render-loop frame (one grid's worth when every view \
+           size shares the grid, times the number of sizes when each render call fills its own), and per render \
+           call.\n\n";
     let stages: Vec<String> = {
         let mut s: Vec<String> = r
             .points
@@ -182,9 +249,17 @@ fn markdown(r: &LoadgenReport) -> String {
         .collect();
     headers.extend(stages.iter().map(|s| format!("{s} GPU ms")));
     headers.extend(
-        ["rays/frame", "dropped slow", "dropped busy", "RSS MiB"]
-            .iter()
-            .map(|s| s.to_string()),
+        [
+            "rays/frame",
+            "render calls/frame",
+            "grid rays/frame",
+            "grid rays/call",
+            "dropped slow",
+            "dropped busy",
+            "RSS MiB",
+        ]
+        .iter()
+        .map(|s| s.to_string()),
     );
     let mut t = Table {
         headers,
@@ -205,6 +280,9 @@ fn markdown(r: &LoadgenReport) -> String {
                 .map(|st| opt_ms(s.stage_gpu_ms.get(st).copied())),
         );
         row.push(format!("{:.0}", s.rays_per_frame.values().sum::<f64>()));
+        row.push(format!("{:.2}", s.render_calls_per_frame));
+        row.push(format!("{:.0}", s.grid_rays_per_frame));
+        row.push(format!("{:.0}", s.grid_rays_per_render_call));
         row.push(s.dropped_client_slow.to_string());
         row.push(s.dropped_encoder_busy.to_string());
         row.push(format!("{:.0}", s.resident_memory_mib));
@@ -219,8 +297,11 @@ fn markdown(r: &LoadgenReport) -> String {
         );
         let full = viewer_table(std::slice::from_ref(p));
         // The markdown keeps the columns the heading does not already give.
-        let keep: Vec<usize> = [
-            "viewer",
+        let mut columns = vec!["viewer"];
+        if mixed {
+            columns.push("size");
+        }
+        columns.extend([
             "fps",
             "frames",
             "latency_p50_ms",
@@ -231,10 +312,11 @@ fn markdown(r: &LoadgenReport) -> String {
             "missed_frames",
             "longest_gap_ms",
             "frames_per_second",
-        ]
-        .iter()
-        .filter_map(|name| full.headers.iter().position(|h| h == name))
-        .collect();
+        ]);
+        let keep: Vec<usize> = columns
+            .iter()
+            .filter_map(|name| full.headers.iter().position(|h| h == name))
+            .collect();
         let t = Table {
             headers: keep.iter().map(|&i| full.headers[i].clone()).collect(),
             rows: full
@@ -278,31 +360,50 @@ fn plots(r: &LoadgenReport, out: &Path) -> anyhow::Result<Vec<&'static str>> {
             .filter_map(|p| Some((x(p), f(p)?)))
             .collect(),
     };
+    // A mixed sweep adds one line per frame size.
+    let per_size = |pick: fn(&PointSummary) -> Option<f64>, what: &str| -> Vec<Series> {
+        if r.config.sizes.len() < 2 {
+            return Vec::new();
+        }
+        r.config
+            .sizes
+            .iter()
+            .map(|&size| {
+                series(&format!("{size}, {what}"), &|p| {
+                    pick(&p.sizes.iter().find(|z| z.size == size)?.summary)
+                })
+            })
+            .collect()
+    };
+    let mut fps = vec![
+        series("per viewer, mean", &|p| Some(p.summary.fps_mean)),
+        series("per viewer, lowest", &|p| Some(p.summary.fps_min)),
+        series("server render loop", &|p| Some(p.server.fps)),
+    ];
+    fps.extend(per_size(|s| Some(s.fps_mean), "mean per viewer"));
     plot(
         &out.join("loadgen_fps.png"),
         "Delivered frame rate vs viewers",
         "viewers (views)",
         "frames per second",
-        &[
-            series("per viewer, mean", &|p| Some(p.summary.fps_mean)),
-            series("per viewer, lowest", &|p| Some(p.summary.fps_min)),
-            series("server render loop", &|p| Some(p.server.fps)),
-        ],
+        &fps,
         true,
         false,
         false,
     )?;
     let l = |pick: fn(&Latency) -> f64| move |p: &PointResult| p.summary.latency.as_ref().map(pick);
+    let mut latency = vec![
+        series("p50", &l(|l| l.p50_ms)),
+        series("p95", &l(|l| l.p95_ms)),
+        series("p99", &l(|l| l.p99_ms)),
+    ];
+    latency.extend(per_size(|s| Some(s.latency?.p50_ms), "p50"));
     plot(
         &out.join("loadgen_latency.png"),
         "Pose-to-frame latency vs viewers",
         "viewers (views)",
         "latency, ms",
-        &[
-            series("p50", &l(|l| l.p50_ms)),
-            series("p95", &l(|l| l.p95_ms)),
-            series("p99", &l(|l| l.p99_ms)),
-        ],
+        &latency,
         true,
         false,
         false,

@@ -1,10 +1,13 @@
 //! Where each simulated viewer flies: the scene's own camera loop, viewers spread evenly
 //! along it as players over a level would be (as `fogcast render` and the bench place
-//! them), or — when the scene is not available on this machine — a slow circle around
-//! the viewpoint the server handed out in the welcome.
+//! them), or — when the scene file is not on this machine — a slow circle around the
+//! viewpoint the server handed out in the welcome.
+//!
+//! Only the scene's camera loop is read ([`load_camera_path`]), never its meshes, and it
+//! stays in the scene file's coordinates, the ones poses are sent in.
 
-use crate::scene::{CameraPath, Scene};
-use crate::server::protocol::{CheckedPose, ViewPose};
+use crate::protocol::ViewPose;
+use crate::scene::{load_camera_path, Camera, CameraPath};
 use glam::{DQuat, DVec3};
 
 /// Radius of the fallback circle, metres.
@@ -27,16 +30,11 @@ pub(crate) enum Paths {
 }
 
 impl Paths {
-    /// The scene's loop if `scene` loads here, else circles (the reason is returned).
+    /// The scene's loop if its file (or built-in name) is known here, else circles (the
+    /// reason is returned).
     pub(crate) fn load(scene: &str) -> (Paths, Option<String>) {
-        match Scene::load(scene) {
-            Ok(s) => (
-                Paths::Scene {
-                    name: s.name,
-                    path: s.camera,
-                },
-                None,
-            ),
+        match load_camera_path(scene) {
+            Ok((name, path)) => (Paths::Scene { name, path }, None),
             Err(e) => (Paths::Orbit, Some(format!("scene {scene:?}: {e}"))),
         }
     }
@@ -64,10 +62,7 @@ impl Paths {
         start: &ViewPose,
     ) -> ViewPose {
         match self {
-            Paths::Scene { path, .. } => {
-                let camera = path.viewers(slots, time_s as f32)[slot];
-                CheckedPose::from_camera(&camera).to_view_pose()
-            }
+            Paths::Scene { path, .. } => view_pose(&path.viewers(slots, time_s as f32)[slot]),
             Paths::Orbit => {
                 let phase = std::f64::consts::TAU * slot as f64 / slots.max(1) as f64;
                 let angle = time_s * ORBIT_RAD_PER_S + phase;
@@ -93,9 +88,33 @@ impl Paths {
     }
 }
 
+/// The pose a client sends for `camera`.
+fn view_pose(camera: &Camera) -> ViewPose {
+    ViewPose {
+        position: camera.position.as_dvec3().to_array(),
+        orientation: camera.orientation().to_array(),
+        fov_y_deg: f64::from(camera.fov_y).to_degrees(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::protocol::{FOV_RANGE_DEG, MAX_COORD_M};
+
+    /// The wire limits a server checks a pose against.
+    fn assert_valid(p: &ViewPose) {
+        assert!(
+            p.position
+                .iter()
+                .all(|x| x.is_finite() && x.abs() <= MAX_COORD_M),
+            "{p:?}"
+        );
+        let len = p.orientation.iter().map(|x| x * x).sum::<f64>().sqrt();
+        assert!((len - 1.0).abs() < 1e-6, "{p:?}");
+        let (lo, hi) = FOV_RANGE_DEG;
+        assert!((lo..=hi).contains(&p.fov_y_deg), "{p:?}");
+    }
 
     #[test]
     fn viewers_are_spread_and_move() {
@@ -115,8 +134,12 @@ mod tests {
         assert!(dist(&a, &b) > 0.5, "{a:?} vs {b:?}");
         assert!(dist(&a, &a_later) > 0.1, "{a:?} vs {a_later:?}");
         for p in [a, b, a_later] {
-            CheckedPose::new(&p, 0).expect("a valid pose");
+            assert_valid(&p);
         }
+
+        // A scene file's loop, read without its glTF meshes.
+        let (sponza, why) = Paths::load("scenes/sponza.toml");
+        assert!(matches!(sponza, Paths::Scene { .. }), "{why:?}");
 
         let (orbit, why) = Paths::load("no-such-scene-here");
         assert!(matches!(orbit, Paths::Orbit) && why.is_some());
@@ -127,6 +150,6 @@ mod tests {
         );
         let o1 = orbit.pose(0, 1, 3.0, &start);
         assert!(dist(&o1, &start) > 0.1, "the circle moves");
-        CheckedPose::new(&o1, 0).expect("a valid pose");
+        assert_valid(&o1);
     }
 }

@@ -156,6 +156,9 @@ pub(crate) async fn metrics(authority: &str) -> anyhow::Result<Scrape> {
     Ok(Scrape::parse(&text, Instant::now()))
 }
 
+/// Labels of the rays traced into the shared world-space shadow grid.
+const GRID_RAYS: &str = "stage=\"shared_grid\"";
+
 /// Server numbers over the interval between two scrapes.
 pub(crate) fn server_stats(before: &Scrape, after: &Scrape) -> ServerStats {
     let d =
@@ -166,6 +169,9 @@ pub(crate) fn server_stats(before: &Scrape, after: &Scrape) -> ServerStats {
         (count > 0.0).then(|| d(&format!("{name}_sum"), labels) / count * 1e3)
     };
     let frames = d("fogcast_frames_total", "");
+    let render_calls = d("fogcast_render_calls_total", "");
+    let per = |n: f64, of: f64| if of > 0.0 { n / of } else { 0.0 };
+    let grid_rays = d("fogcast_rays_traced_total", GRID_RAYS);
     let stage_gpu_ms = after
         .label_values("fogcast_stage_gpu_seconds_sum", "stage")
         .into_iter()
@@ -189,11 +195,14 @@ pub(crate) fn server_stats(before: &Scrape, after: &Scrape) -> ServerStats {
         frame_ms: mean_ms("fogcast_frame_seconds", ""),
         render_ms: mean_ms("fogcast_render_seconds", ""),
         encode_ms: mean_ms("fogcast_encode_seconds", ""),
-        render_calls: d("fogcast_render_calls_total", "") as u64,
+        render_calls: render_calls as u64,
         views_rendered: d("fogcast_views_rendered_total", "") as u64,
         render_errors: d("fogcast_render_errors_total", "") as u64,
         stage_gpu_ms,
         rays_per_frame,
+        render_calls_per_frame: per(render_calls, frames),
+        grid_rays_per_frame: per(grid_rays, frames),
+        grid_rays_per_render_call: per(grid_rays, render_calls),
         frames_encoded: d("fogcast_frames_encoded_total", "") as u64,
         frames_sent: d("fogcast_frames_sent_total", "") as u64,
         bytes_sent: d("fogcast_bytes_sent_total", "") as u64,
@@ -225,13 +234,15 @@ mod tests {
         let a = Scrape::parse(
             "# TYPE x counter\nfogcast_frames_total 10\nfogcast_frame_seconds_sum 1.0\nfogcast_frame_seconds_count 10\n\
              fogcast_stage_gpu_seconds_sum{stage=\"froxel_lighting\"} 0.5\nfogcast_stage_gpu_seconds_count{stage=\"froxel_lighting\"} 10\n\
-             fogcast_rays_traced_total{stage=\"surface\"} 100\nfogcast_frames_dropped_total{reason=\"client_slow\"} 1\n",
+             fogcast_rays_traced_total{stage=\"surface\"} 100\nfogcast_frames_dropped_total{reason=\"client_slow\"} 1\n\
+             fogcast_render_calls_total 10\nfogcast_rays_traced_total{stage=\"shared_grid\"} 1000\n",
             t0,
         );
         let b = Scrape::parse(
             "fogcast_frames_total 30\nfogcast_frame_seconds_sum 5.0\nfogcast_frame_seconds_count 30\n\
              fogcast_stage_gpu_seconds_sum{stage=\"froxel_lighting\"} 2.5\nfogcast_stage_gpu_seconds_count{stage=\"froxel_lighting\"} 30\n\
-             fogcast_rays_traced_total{stage=\"surface\"} 2100\nfogcast_frames_dropped_total{reason=\"client_slow\"} 4\nfogcast_viewers 2\n",
+             fogcast_rays_traced_total{stage=\"surface\"} 2100\nfogcast_frames_dropped_total{reason=\"client_slow\"} 4\nfogcast_viewers 2\n\
+             fogcast_render_calls_total 70\nfogcast_rays_traced_total{stage=\"shared_grid\"} 61000\n",
             t0 + Duration::from_secs(2),
         );
         let s = server_stats(&a, &b);
@@ -241,5 +252,10 @@ mod tests {
         assert!((s.stage_gpu_ms["froxel_lighting"] - 100.0).abs() < 1e-6);
         assert!((s.rays_per_frame["surface"] - 100.0).abs() < 1e-9);
         assert_eq!(s.encode_ms, None);
+        // Three view sizes, each filling the grid: 3 calls and 3000 grid rays a frame.
+        assert_eq!(s.render_calls, 60);
+        assert!((s.render_calls_per_frame - 3.0).abs() < 1e-9);
+        assert!((s.grid_rays_per_frame - 3000.0).abs() < 1e-9);
+        assert!((s.grid_rays_per_render_call - 1000.0).abs() < 1e-9);
     }
 }

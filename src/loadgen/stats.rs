@@ -1,8 +1,8 @@
 //! Per-viewer and per-point numbers from the frame records of one measurement window.
 
 use super::client::ViewerRecord;
-use super::{Latency, PointSummary, ViewerStats};
-use crate::server::protocol::FrameHeader;
+use super::{FrameSize, Latency, PointSummary, SizeResult, ViewerStats};
+use crate::protocol::FrameHeader;
 use std::time::{Duration, Instant};
 
 /// Nearest-rank percentile `p` (0–100) of sorted `v`.
@@ -52,11 +52,11 @@ pub(crate) fn latencies(rec: &ViewerRecord, t0: Instant, t1: Instant) -> Vec<f64
     out
 }
 
-/// One viewer's numbers over the window `[t0, t1)`.
+/// One viewer's numbers over the window `[t0, t1)`; `views` and `size` are its session's.
 pub(crate) fn viewer(
     index: usize,
     session: u64,
-    views: u32,
+    (views, size): (u32, FrameSize),
     rec: &ViewerRecord,
     (t0, t1): (Instant, Instant),
     ended_early: Option<String>,
@@ -120,6 +120,7 @@ pub(crate) fn viewer(
         index,
         session,
         views,
+        size,
         frames,
         fps: frames as f64 / window_s,
         bytes,
@@ -179,11 +180,45 @@ pub(crate) fn summary(viewers: &[ViewerStats], pooled_ms: Vec<f64>) -> PointSumm
     }
 }
 
+/// The numbers of each frame size's viewers (in the order of `sizes`, those that had
+/// any); `latencies_ms[i]` are viewer `i`'s samples.
+pub(crate) fn per_size(
+    sizes: &[FrameSize],
+    viewers: &[ViewerStats],
+    latencies_ms: &[Vec<f64>],
+) -> Vec<SizeResult> {
+    sizes
+        .iter()
+        .filter_map(|&size| {
+            let of_size: Vec<usize> = (0..viewers.len())
+                .filter(|&i| viewers[i].size == size)
+                .collect();
+            let first = *of_size.first()?;
+            let pooled = of_size
+                .iter()
+                .flat_map(|&i| latencies_ms[i].iter().copied())
+                .collect();
+            let stats: Vec<ViewerStats> = of_size.iter().map(|&i| viewers[i].clone()).collect();
+            Some(SizeResult {
+                size,
+                sessions: of_size.len(),
+                views: of_size.len() * viewers[first].views as usize,
+                summary: summary(&stats, pooled),
+            })
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::loadgen::client::FrameRecord;
-    use crate::server::protocol::Layout;
+    use crate::protocol::Layout;
+
+    const SIZE: FrameSize = FrameSize {
+        width: 64,
+        height: 36,
+    };
 
     fn frame(at: Instant, frame: u32, pose_seq: u32, dropped: u32) -> FrameRecord {
         FrameRecord {
@@ -232,7 +267,7 @@ mod tests {
             ],
             ..ViewerRecord::default()
         };
-        let v = viewer(0, 1, 1, &rec, (at(100), at(2100)), None);
+        let v = viewer(0, 1, (1, SIZE), &rec, (at(100), at(2100)), None);
         assert_eq!(
             (v.frames, v.bytes, v.missed_frames, v.dropped_server),
             (3, 3000, 1, 1)
@@ -255,7 +290,7 @@ mod tests {
             frames: vec![frame(at(200), 1, 1, 0), frame(at(2300), 2, 1, 0)],
             ..ViewerRecord::default()
         };
-        let v = viewer(0, 1, 1, &slow, (at(100), at(3100)), None);
+        let v = viewer(0, 1, (1, SIZE), &slow, (at(100), at(3100)), None);
         assert_eq!((v.seconds_without_frames, v.missed_frames), (1, 0));
         assert!(v.served_throughout);
         let s = summary(&[v], vec![]);
@@ -265,8 +300,53 @@ mod tests {
             frames: vec![frame(at(200), 1, 0, 0), frame(at(2300), 3, 0, 1)],
             ..ViewerRecord::default()
         };
-        assert!(!viewer(0, 1, 1, &starved, (at(100), at(3100)), None).served_throughout);
-        let left = viewer(0, 1, 1, &rec, (at(100), at(2100)), Some("gone".into()));
+        assert!(!viewer(0, 1, (1, SIZE), &starved, (at(100), at(3100)), None).served_throughout);
+        let left = viewer(
+            0,
+            1,
+            (1, SIZE),
+            &rec,
+            (at(100), at(2100)),
+            Some("gone".into()),
+        );
         assert!(!left.served_throughout);
+    }
+
+    #[test]
+    fn sizes_are_summarised_apart() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let big = FrameSize {
+            width: 128,
+            height: 72,
+        };
+        let unused = FrameSize {
+            width: 32,
+            height: 18,
+        };
+        // Viewers 0 and 2 small (4 and 2 frames), viewer 1 big (1 frame).
+        let rec = |n: u32| ViewerRecord {
+            pose_sent: vec![at(0)],
+            frames: (0..n)
+                .map(|i| frame(at(100 + 200 * u64::from(i)), i + 1, 1, 0))
+                .collect(),
+            ..ViewerRecord::default()
+        };
+        let window = (at(0), at(1000));
+        let viewers = [
+            viewer(0, 1, (1, SIZE), &rec(4), window, None),
+            viewer(1, 2, (1, big), &rec(1), window, None),
+            viewer(2, 3, (1, SIZE), &rec(2), window, None),
+        ];
+        let latencies = [vec![100.0], vec![500.0], vec![300.0]];
+        let sizes = per_size(&[SIZE, unused, big], &viewers, &latencies);
+        assert_eq!(sizes.len(), 2, "a size without sessions is left out");
+        let (small, large) = (&sizes[0], &sizes[1]);
+        assert_eq!((small.size, small.sessions, small.views), (SIZE, 2, 2));
+        assert_eq!((large.size, large.sessions, large.views), (big, 1, 1));
+        assert!((small.summary.fps_mean - 3.0).abs() < 1e-9);
+        assert_eq!(small.summary.frames_total, 6);
+        assert_eq!(small.summary.latency.unwrap().samples, 2);
+        assert_eq!(large.summary.latency.unwrap().p50_ms, 500.0);
     }
 }

@@ -1,7 +1,7 @@
 //! Cameras and the path viewers travel along.
 
 use super::{invalid, SceneError};
-use glam::{Mat4, Vec3};
+use glam::{DMat3, DQuat, Mat4, Vec3};
 use serde::{Deserialize, Serialize};
 
 /// A closed loop of points that viewers walk around, optionally with look-at points.
@@ -63,6 +63,16 @@ impl Camera {
         } else {
             Vec3::Y
         }
+    }
+
+    /// The roll-free rotation (+y up) that turns the camera's −z into `forward`: the
+    /// orientation the viewer protocol sends.
+    pub fn orientation(&self) -> DQuat {
+        let f = self.forward.as_dvec3().normalize();
+        let up = self.up().as_dvec3();
+        let right = f.cross(up).normalize();
+        let up = right.cross(f);
+        DQuat::from_mat3(&DMat3::from_cols(right, up, -f)).normalize()
     }
 
     /// World-to-view matrix (right-handed, −z forward).

@@ -9,7 +9,8 @@
 //! the largest frame of that layout that would fit now; a size the protocol accepts
 //! therefore never fails later for want of memory.
 
-use super::protocol::{ErrorCode, ProtocolError, SessionSpec, SpecLimits};
+use super::validate::{ProtocolError, SessionSpec, SpecLimits};
+use crate::protocol::ErrorCode;
 use crate::render::{largest_binding, viewer_memory_bytes, Settings};
 use std::collections::BTreeMap;
 
@@ -143,7 +144,8 @@ impl Budget {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::server::protocol::{Layout, TEST_LIMITS as LIMITS};
+    use crate::protocol::Layout;
+    use crate::server::validate::TEST_LIMITS as LIMITS;
 
     fn mono(w: u32, h: u32) -> SessionSpec {
         SessionSpec::validate(w, h, Layout::Mono, None, None, None, &LIMITS).unwrap()

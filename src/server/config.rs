@@ -1,6 +1,6 @@
 //! Server settings: defaults, a TOML config file, and the checks that run before start.
 
-use super::protocol::SpecLimits;
+use super::validate::SpecLimits;
 use crate::render::Settings;
 use crate::settings_overrides::SettingsOverrides;
 use anyhow::Context as _;

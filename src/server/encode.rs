@@ -3,8 +3,9 @@
 //! render thread.
 
 use super::hub::{EncodedFrame, Hub, SessionShared};
-use super::protocol::{FrameHeader, SessionSpec, FRAME_HEADER_BYTES};
 use super::telemetry::DropReason;
+use super::validate::SessionSpec;
+use crate::protocol::{FrameHeader, FRAME_HEADER_BYTES};
 use axum::body::Bytes;
 use std::sync::atomic::Ordering::{Relaxed, Release};
 use std::sync::Arc;

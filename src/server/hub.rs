@@ -6,10 +6,12 @@
 use super::admission::{Pending, TokenBackoff};
 use super::budget::{Budget, Usage};
 use super::config::ServerConfig;
-use super::protocol::{cameras_for, CheckedPose, ErrorCode, Layout, ProtocolError, SessionSpec};
 use super::telemetry::{DropReason, Telemetry};
+use super::validate::{cameras_for, CheckedPose, ProtocolError, SessionSpec};
+use crate::protocol::{ErrorCode, Layout};
 use crate::scene::{Camera, Scene};
 use axum::body::Bytes;
+use glam::DVec3;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -78,9 +80,22 @@ impl Drop for FrameSlot {
 #[derive(Debug, Clone)]
 pub(crate) struct SessionView {
     pub(crate) spec: SessionSpec,
+    /// The poses in force, world space (as the welcome reports them).
     pub(crate) poses: Vec<CheckedPose>,
+    /// The render-space cameras of every view, made from `poses` and `spec` once, when
+    /// either changes (not once per frame).
+    cameras: Vec<Camera>,
     /// Sequence number of the last pose message applied (0 before the first).
     pub(crate) pose_seq: u32,
+}
+
+impl SessionView {
+    /// Sets the poses (or the spec) in force and makes their cameras.
+    fn place(&mut self, spec: SessionSpec, poses: Vec<CheckedPose>, origin: DVec3) {
+        self.cameras = cameras_for(&spec, &poses, origin);
+        self.spec = spec;
+        self.poses = poses;
+    }
 }
 
 /// One session as the render loop and encoders see it.
@@ -126,9 +141,12 @@ impl SessionShared {
         lock(&self.view).clone()
     }
 
-    pub(crate) fn set_poses(&self, seq: u32, poses: Vec<CheckedPose>) {
+    /// Applies a validated pose message: its cameras are made here, once, in the render
+    /// space that starts at world point `origin`.
+    pub(crate) fn set_poses(&self, seq: u32, poses: Vec<CheckedPose>, origin: DVec3) {
         let mut v = lock(&self.view);
-        v.poses = poses;
+        let spec = v.spec;
+        v.place(spec, poses, origin);
         v.pose_seq = seq;
     }
 
@@ -285,7 +303,7 @@ impl Hub {
             .camera
             .viewers(n, t)
             .iter()
-            .map(CheckedPose::from_camera)
+            .map(|c| CheckedPose::from_camera(c, self.scene.origin))
             .collect()
     }
 
@@ -313,6 +331,7 @@ impl Hub {
         let shared = Arc::new(SessionShared {
             id,
             view: Mutex::new(SessionView {
+                cameras: cameras_for(&spec, &poses, self.scene.origin),
                 spec,
                 poses,
                 pose_seq: 0,
@@ -359,10 +378,12 @@ impl Hub {
                 .map(|s| lock(&s.view).spec),
             &spec,
         )?;
-        if view.spec.pose_count() != spec.pose_count() {
-            view.poses = defaults;
-        }
-        view.spec = spec;
+        let poses = if view.spec.pose_count() == spec.pose_count() {
+            std::mem::take(&mut view.poses)
+        } else {
+            defaults
+        };
+        view.place(spec, poses, self.scene.origin);
         Ok(view.clone())
     }
 
@@ -393,7 +414,7 @@ impl Hub {
             .map(|session| {
                 let v = session.view();
                 SessionSnapshot {
-                    cameras: cameras_for(&v.spec, &v.poses),
+                    cameras: v.cameras,
                     spec: v.spec,
                     pose_seq: v.pose_seq,
                     session,

@@ -1,7 +1,8 @@
 //! The streaming server (`fogcast serve`): every viewer's frames over WebSocket to
 //! browsers, with mono, stereo (VR) and split-screen sessions. Protocol: `docs/protocol.md`.
 //!
-//! - [`protocol`]: message types, validation, the binary frame header.
+//! - `validate`: client messages parsed and checked into session specs and cameras (the
+//!   wire types are [`crate::protocol`]).
 //! - [`config`]: settings, config file; [`ServeArgs`]: the flags over it.
 //! - `hub`: sessions, view accounting, latest poses, latest-frame slots.
 //! - `render_loop`: the render thread (owns the GPU work: one world, every session's
@@ -21,10 +22,10 @@ mod encode;
 mod http;
 mod hub;
 mod listen;
-pub mod protocol;
 mod render_loop;
 mod session;
 mod telemetry;
+mod validate;
 
 pub use cli::{serve, ServeArgs};
 pub use config::ServerConfig;

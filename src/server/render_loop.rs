@@ -26,9 +26,10 @@
 use super::config::FaultKind;
 use super::encode::EncodeJob;
 use super::hub::{Hub, SessionSnapshot};
-use super::protocol::{ErrorCode, ProtocolError};
 use super::telemetry::DropReason;
+use super::validate::ProtocolError;
 use crate::gpu::GpuContext;
+use crate::protocol::ErrorCode;
 use crate::render::{FrameTarget, Renderer, Settings, TargetView, TargetsOutput, ViewerId};
 use crate::scene::Bvh;
 use std::collections::BTreeMap;

@@ -5,12 +5,12 @@
 
 use super::hub::{layout_name, ConnectionGuard, Hub, SessionShared};
 use super::listen::Slot;
-use super::protocol::{
-    check_pose, clip, parse_client_message, CheckedPose, ClientMessage, ErrorCode, ErrorMessage,
-    Hello, Limits, ProtocolError, ServerMessage, SessionSpec, Welcome, FOV_RANGE_DEG,
-    FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
-};
 use super::telemetry::DropReason;
+use super::validate::{check_pose, parse_client_message, CheckedPose, ProtocolError, SessionSpec};
+use crate::protocol::{
+    clip, ClientMessage, ErrorCode, ErrorMessage, Hello, Limits, ServerMessage, Welcome,
+    FOV_RANGE_DEG, FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
+};
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
 use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt as _, StreamExt as _};
@@ -378,7 +378,12 @@ fn welcome(hub: &Hub, session: &SessionShared) -> String {
         eye_distance_m: v.spec.eye_distance_m,
         fps: c.fps,
         header_bytes: FRAME_HEADER_BYTES,
-        poses: v.poses.iter().map(CheckedPose::to_view_pose).collect(),
+        poses: v
+            .poses
+            .iter()
+            .copied()
+            .map(CheckedPose::to_view_pose)
+            .collect(),
         limits: Limits {
             max_message_bytes: c.max_message_bytes,
             max_messages_per_s: c.max_messages_per_s,
@@ -601,7 +606,7 @@ fn handle_text(
         ClientMessage::Pose(p) => {
             let spec = session.view().spec;
             let poses = check_pose(&spec, &p)?;
-            session.set_poses(p.seq, poses);
+            session.set_poses(p.seq, poses, hub.scene.origin);
             Ok(None)
         }
         ClientMessage::Configure(c) => {

@@ -3,7 +3,7 @@
 //! Counters are atomics bumped by the render thread, the encoders and the session tasks;
 //! nothing here blocks anyone for longer than a map insert.
 
-use super::protocol::ErrorCode;
+use crate::protocol::ErrorCode;
 use crate::render::{FrameStats, Stage};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

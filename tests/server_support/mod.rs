@@ -2,7 +2,7 @@
 //! port, a protocol client over tokio-tungstenite, `/metrics` scraping, JPEG decoding.
 #![allow(dead_code)] // each test binary uses a different subset
 
-use fogcast::server::protocol::{ErrorMessage, FrameHeader, ServerMessage, ViewPose, Welcome};
+use fogcast::protocol::{ErrorMessage, FrameHeader, ServerMessage, ViewPose, Welcome};
 use fogcast::server::{Server, ServerConfig};
 use futures_util::{SinkExt as _, StreamExt as _};
 use std::net::SocketAddr;
