@@ -35,8 +35,10 @@ fn default_near() -> f32 {
 fn default_far() -> f32 {
     64.0
 }
+/// A scene that names no voxel size gets the renderer's default (defined once, in
+/// `src/render/settings.rs`).
 fn default_voxel() -> f32 {
-    0.25
+    crate::render::Settings::default().voxel_size_m
 }
 fn default_sky() -> [f32; 3] {
     [0.35, 0.45, 0.6]
