@@ -1,8 +1,84 @@
 //! Stage 3 (paper 000 §3.1.3): in-scattering and extinction per froxel, all viewers in
 //! one dispatch, with `shaders/froxel_lighting.wgsl`.
 
-use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerSet};
+use super::gpu_types::{ViewGpu, NO_HISTORY};
+use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerId, ViewerSet, ViewerVolumes};
 use crate::gpu::GpuContext;
+use glam::Mat4;
+use std::collections::HashMap;
+
+/// What froxel lighting keeps of a viewer's last frame for temporal reprojection.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ViewerHistory {
+    /// Last frame's view-projection.
+    pub view_proj: Mat4,
+    /// Where the viewer's froxels start in last frame's froxel buffer.
+    pub froxel_base: u32,
+}
+
+/// Froxel lighting's history in one viewer set: an output/history pair — this frame's
+/// froxels (`ViewerVolumes::froxels`) and last frame's (`froxel_history`), swapped after
+/// each frame instead of copied — and per viewer id where its froxels were, so a viewer
+/// whose slot moved reads its own.
+#[derive(Default)]
+pub(crate) struct FroxelHistory {
+    viewers: HashMap<ViewerId, ViewerHistory>,
+    /// Last frame's froxels while the set's volumes were reallocated since.
+    carried: Option<wgpu::Buffer>,
+}
+
+impl FroxelHistory {
+    /// Viewer `id`'s last frame, if it has one.
+    pub(crate) fn of(&self, id: ViewerId) -> Option<ViewerHistory> {
+        self.viewers.get(&id).copied()
+    }
+
+    /// The set's volumes were reallocated: `old`'s last froxels stay readable one frame.
+    pub(crate) fn reallocated(&mut self, old: ViewerVolumes, temporal: bool) {
+        self.carried = temporal.then_some(old.froxel_history);
+    }
+
+    /// Last frame's froxels, as the stage reads them.
+    pub(crate) fn buffer<'a>(&'a self, vol: &'a ViewerVolumes) -> &'a wgpu::Buffer {
+        self.carried.as_ref().unwrap_or(&vol.froxel_history)
+    }
+
+    /// Whether some viewer has a history.
+    #[cfg(test)]
+    pub(crate) fn is_empty(&self) -> bool {
+        self.viewers.is_empty()
+    }
+
+    /// After the frame: with `keep` (temporal reprojection on and the froxels written),
+    /// this frame's froxels become the next one's history for the viewers `ids`;
+    /// otherwise, and for viewers that left, the history is dropped.
+    pub(crate) fn finish(
+        &mut self,
+        vol: &mut ViewerVolumes,
+        ids: &[ViewerId],
+        views: &[ViewGpu],
+        keep: bool,
+    ) {
+        self.carried = None;
+        self.viewers.clear();
+        if !keep {
+            return;
+        }
+        std::mem::swap(&mut vol.froxels, &mut vol.froxel_history);
+        for (id, v) in ids.iter().zip(views) {
+            let h = ViewerHistory {
+                view_proj: Mat4::from_cols_array_2d(&v.view_proj),
+                froxel_base: v.froxel_base,
+            };
+            self.viewers.insert(*id, h);
+        }
+    }
+
+    /// `ViewGpu::history_base` of viewer `id` (`NO_HISTORY` without).
+    pub(crate) fn base(&self, id: ViewerId) -> u32 {
+        self.of(id).map_or(NO_HISTORY, |h| h.froxel_base)
+    }
+}
 
 /// Pipeline of the froxel lighting stage.
 pub(crate) struct FroxelLighting {
@@ -47,7 +123,7 @@ impl FroxelLighting {
                 grid_buffer,
                 &volumes.frustum,
                 &volumes.froxels,
-                set.froxel_history(),
+                set.history.buffer(volumes),
                 bricks,
                 &volumes.column_limit,
             ],

@@ -29,10 +29,10 @@ fn nan_and_inf_in_the_history_are_discarded() {
         let mut r = Renderer::new(ctx.clone(), scene.clone(), settings).expect("renderer");
         r.render(&cams, W, H, 0.0).expect("frame 1");
         let set = r.sets.values().next().expect("a viewer set after a frame");
-        assert!(set.has_history(), "frame 1 leaves a history behind");
+        assert!(!set.history.is_empty(), "frame 1 leaves a history behind");
         if poison {
             // Every f16 of every history froxel: rgb and σt alike.
-            let history = set.froxel_history();
+            let history = set.history.buffer(&set.vol);
             let halves = (history.size() / 2) as usize;
             let words: Vec<u16> = (0..halves).map(|i| POISON[i % POISON.len()]).collect();
             ctx.queue

@@ -4,23 +4,15 @@
 //! its froxels were) is keyed by its stable [`ViewerId`], so viewers joining or leaving
 //! never hand one viewer another's history.
 
+use super::froxel_lighting::FroxelHistory;
 use super::gbuffer::RasterView;
-use super::gpu_types::{FrameGpu, ViewGpu, NO_HISTORY};
+use super::gpu_types::{FrameGpu, ViewGpu};
 use super::scene_gpu::SceneGpu;
 use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
 use crate::gpu::GpuContext;
-use glam::Mat4;
-use std::collections::HashMap;
 
 /// A viewer's identity across frames (a session's view: session id and view index).
 pub type ViewerId = u64;
-
-/// What the froxel lighting of the next frame needs of a viewer's last frame.
-#[derive(Debug, Clone, Copy)]
-struct History {
-    view_proj: Mat4,
-    froxel_base: u32,
-}
 
 /// Where one target's frame lies in the set's output buffer.
 #[derive(Debug, Clone, Copy)]
@@ -49,10 +41,8 @@ pub(crate) struct ViewerSet {
     /// Where each target of this frame goes in `vol.output`.
     pub(crate) targets: Vec<TargetSlice>,
     ids: Vec<ViewerId>,
-    history: HashMap<ViewerId, History>,
-    /// Last frame's froxels when the volumes were reallocated since (new viewers came
-    /// or went): read as history for one frame.
-    carried: Option<wgpu::Buffer>,
+    /// Froxel lighting's temporal history of these viewers, keyed by id.
+    pub(crate) history: FroxelHistory,
 }
 
 impl ViewerSet {
@@ -75,8 +65,7 @@ impl ViewerSet {
             first_view: 0,
             targets: Vec::new(),
             ids: Vec::new(),
-            history: HashMap::new(),
-            carried: None,
+            history: FroxelHistory::default(),
         })
     }
 
@@ -132,7 +121,7 @@ impl ViewerSet {
         let pixels: u64 = targets.iter().map(|(_, t)| t.pixels()).sum();
         if count != self.vol.count || pixels != self.vol.output_pixels {
             let old = std::mem::replace(&mut self.vol, Self::volumes(ctx, settings, targets)?);
-            self.carried = settings.temporal.then_some(old.froxel_history);
+            self.history.reallocated(old, settings.temporal);
             (self.frame, self.views, self.bind_group) = Self::uniforms(ctx, scene, count)?;
         }
         let vol = &self.vol;
@@ -157,7 +146,7 @@ impl ViewerSet {
                 let right = c.forward.cross(c.up()).normalize();
                 let up = right.cross(c.forward);
                 let tan_y = (c.fov_y * 0.5).tan();
-                let history = self.history.get(&v.id);
+                let history = self.history.of(v.id);
                 self.gpu_views.push(ViewGpu {
                     view_proj: vp.to_cols_array_2d(),
                     prev_view_proj: history.map_or(vp, |h| h.view_proj).to_cols_array_2d(),
@@ -181,7 +170,7 @@ impl ViewerSet {
                         + v.origin[0] as u64) as u32,
                     jitter: frame_jitter(settings, frame.frame_index),
                     row_stride: t.width,
-                    history_base: history.map_or(NO_HISTORY, |h| h.froxel_base),
+                    history_base: self.history.base(v.id),
                     _pad: [0; 2],
                 });
                 self.ids.push(v.id);
@@ -208,36 +197,11 @@ impl ViewerSet {
         Ok(())
     }
 
-    /// Whether some viewer has last frame's froxels to reproject.
-    #[cfg(test)]
-    pub(crate) fn has_history(&self) -> bool {
-        !self.history.is_empty()
-    }
-
-    /// Last frame's froxels, as the froxel lighting reads them.
-    pub(crate) fn froxel_history(&self) -> &wgpu::Buffer {
-        self.carried.as_ref().unwrap_or(&self.vol.froxel_history)
-    }
-
-    /// After the frame: this frame's froxels become the next one's history (when the
-    /// froxel stages ran with temporal reprojection on); history of viewers that left
-    /// is dropped.
+    /// After the frame: froxel lighting's history moves on (see [`FroxelHistory`]).
     pub(crate) fn finish(&mut self, settings: &Settings, froxels_written: bool) {
-        self.carried = None;
-        self.history.clear();
-        if !(settings.temporal && froxels_written) {
-            return;
-        }
-        std::mem::swap(&mut self.vol.froxels, &mut self.vol.froxel_history);
-        for (id, v) in self.ids.iter().zip(&self.gpu_views) {
-            self.history.insert(
-                *id,
-                History {
-                    view_proj: Mat4::from_cols_array_2d(&v.view_proj),
-                    froxel_base: v.froxel_base,
-                },
-            );
-        }
+        let keep = settings.temporal && froxels_written;
+        self.history
+            .finish(&mut self.vol, &self.ids, &self.gpu_views, keep);
     }
 }
 
