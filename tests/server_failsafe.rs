@@ -151,6 +151,9 @@ async fn a_new_view_size_joins_the_one_world_and_every_frame_is_one_render_call(
         calls, frames,
         "one render call (one world) per frame, not one per size"
     );
+    let grid_rays = metric(&m, "fogcast_grid_rays_last_frame", "");
+    eprintln!("grid rays in the last frame: {grid_rays}");
+    assert!(grid_rays.is_finite() && grid_rays >= 0.0);
     server.shutdown().await.unwrap();
 }
 

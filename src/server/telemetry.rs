@@ -56,6 +56,8 @@ pub(crate) struct Telemetry {
     pub(crate) frames: AtomicU64,
     pub(crate) views_rendered: AtomicU64,
     pub(crate) render_calls: AtomicU64,
+    /// Shared-grid rays of the last render call (one world: the frame's).
+    grid_rays_last: AtomicU64,
     pub(crate) render_errors: AtomicU64,
     /// Panics caught on the render thread (the frame or size group was dropped).
     pub(crate) render_panics: AtomicU64,
@@ -94,6 +96,8 @@ impl Telemetry {
     /// Adds one render call's counters and GPU stage times.
     pub(crate) fn record_render(&self, stats: &FrameStats) {
         self.render_calls.fetch_add(1, Relaxed);
+        self.grid_rays_last
+            .store(stats.rays.of_stage(Stage::SharedGrid), Relaxed);
         self.views_rendered.fetch_add(stats.viewers as u64, Relaxed);
         self.render_seconds.observe_ms(stats.frame_ms);
         for (slot, (stage, _)) in self.rays.iter().zip(ray_stages()) {
@@ -207,8 +211,15 @@ impl Telemetry {
             &mut o,
             "fogcast_render_calls_total",
             "counter",
-            "Batched render calls (one per view size per frame).",
+            "Render calls: one per frame for every session of every size (more only when a failed frame is retried per view size).",
             &[("", n(&self.render_calls))],
+        );
+        metric(
+            &mut o,
+            "fogcast_grid_rays_last_frame",
+            "gauge",
+            "Shadow rays traced into the shared world-space grid in the last frame, for every viewer of every size together.",
+            &[("", n(&self.grid_rays_last))],
         );
         metric(
             &mut o,
