@@ -355,11 +355,11 @@ pub struct ServerStats {
     pub fps: f64,
     /// Mean render-loop frame time (all render calls of a frame), ms.
     pub frame_ms: Option<f64>,
-    /// Mean batched render call (upload to readback), ms.
+    /// Mean render call (every session of every size, upload to readback), ms.
     pub render_ms: Option<f64>,
-    /// Mean compose + JPEG encode of one session frame, ms.
+    /// Mean JPEG encode of one session frame, ms.
     pub encode_ms: Option<f64>,
-    /// Batched render calls (one per view size per frame).
+    /// Render calls (one per frame; more only when a failed frame is retried per size).
     pub render_calls: u64,
     /// Views rendered.
     pub views_rendered: u64,
@@ -369,8 +369,8 @@ pub struct ServerStats {
     pub stage_gpu_ms: BTreeMap<String, f64>,
     /// Shadow rays traced per render-loop frame, per stage.
     pub rays_per_frame: BTreeMap<String, f64>,
-    /// Batched render calls per render-loop frame (one per view size with a renderer
-    /// that renders each size separately).
+    /// Render calls per render-loop frame (1 with one world for every size; it was the
+    /// number of view sizes when each size had its own renderer).
     pub render_calls_per_frame: f64,
     /// Rays traced into the shared world-space shadow grid per render-loop frame
     /// (`fogcast_rays_traced_total{stage="shared_grid"}` over `fogcast_frames_total`):
@@ -393,8 +393,8 @@ pub struct ServerStats {
     pub sessions: u64,
     /// Views rendered per frame at the end of the window.
     pub viewers: u64,
-    /// Renderers alive (one per view size).
-    pub renderers: u64,
+    /// View sizes in the server's last frame (one viewer set each, one world for all).
+    pub view_sizes: u64,
     /// Server resident memory at the end of the window, MiB.
     pub resident_memory_mib: f64,
 }

@@ -226,13 +226,13 @@ fn markdown(r: &LoadgenReport) -> String {
         md += &t.to_markdown();
     }
 
-    md += "\n## Server per point (`/metrics` over the window)\n\nframe: one render-loop iteration; render: one batched \
-           render call, upload to readback; encode: compose + JPEG of one session frame; GPU ms per stage from \
-           timestamp queries; rays per frame over all stages; *render calls/frame*: batched render calls per \
-           render-loop frame (one per view size while each size is rendered on its own); *grid rays/frame*: rays \
-           traced into the shared world-space shadow grid per render-loop frame (one grid's worth when every view \
-           size shares the grid, times the number of sizes when each render call fills its own), and per render \
-           call.\n\n";
+    md += "\n## Server per point (`/metrics` over the window)\n\nframe: one render-loop iteration; render: one render \
+           call, upload to readback; encode: JPEG of one session frame; GPU ms per stage from \
+           timestamp queries; rays per frame over all stages; *render calls/frame*: render calls per \
+           render-loop frame (1: every session of every size in one call on one world; a server with a \
+           renderer per view size makes one per size); *grid rays/frame*: rays traced into the shared \
+           world-space shadow grid per render-loop frame (one grid's worth when every view size shares the \
+           grid, times the number of sizes when each render call fills its own), and per render call.\n\n";
     let stages: Vec<String> = {
         let mut s: Vec<String> = r
             .points

@@ -210,7 +210,7 @@ pub(crate) fn server_stats(before: &Scrape, after: &Scrape) -> ServerStats {
         dropped_encoder_busy: d("fogcast_frames_dropped_total", "reason=\"encoder_busy\"") as u64,
         sessions: after.get("fogcast_sessions", "") as u64,
         viewers: after.get("fogcast_viewers", "") as u64,
-        renderers: after.get("fogcast_renderers", "") as u64,
+        view_sizes: after.get("fogcast_view_sizes", "") as u64,
         resident_memory_mib: after.get("fogcast_resident_memory_bytes", "") / (1024.0 * 1024.0),
     }
 }
