@@ -77,9 +77,14 @@ struct View {
 
 const NO_HISTORY: u32 = 0xffffffffu;
 
+// Light.kind (LightKind::gpu_code in src/scene/types.rs)
+const LIGHT_DIRECTIONAL: u32 = 0u;
+const LIGHT_POINT: u32 = 1u;
+const LIGHT_SPOT: u32 = 2u;
+
 struct Light {
     position: vec3f,
-    kind: u32,        // 0 directional, 1 point, 2 spot
+    kind: u32,        // LIGHT_DIRECTIONAL, LIGHT_POINT or LIGHT_SPOT
     direction: vec3f, // direction of travel
     cos_outer: f32,
     radiance: vec3f,
@@ -240,7 +245,7 @@ fn depth_to_slice(v: View, z: f32) -> f32 {
 
 // Direction from `p` towards light `l` (xyz) and the shadow-ray length (w).
 fn to_light(l: Light, p: vec3f) -> vec4f {
-    if l.kind == 0u {
+    if l.kind == LIGHT_DIRECTIONAL {
         return vec4f(-l.direction, frame.max_ray_m);
     }
     let d = l.position - p;
@@ -252,13 +257,13 @@ fn to_light(l: Light, p: vec3f) -> vec4f {
 // off with the inverse square of the distance, clamped at 0.1 m so that a light inside
 // a voxel or at a froxel centre stays finite.
 fn light_radiance(l: Light, p: vec3f) -> vec3f {
-    if l.kind == 0u {
+    if l.kind == LIGHT_DIRECTIONAL {
         return l.radiance;
     }
     let d = l.position - p;
     let dist2 = max(dot(d, d), 0.01);
     var r = l.radiance / dist2;
-    if l.kind == 2u {
+    if l.kind == LIGHT_SPOT {
         let c = dot(-d * inverseSqrt(max(dot(d, d), 1e-12)), l.direction);
         r *= smoothstep(l.cos_outer, l.cos_inner, c);
     }
@@ -456,7 +461,7 @@ struct MediaColumn {
 
 fn media_column(l: Light, v: LightMedia, xy: vec2u) -> MediaColumn {
     let e = (vec2f(xy) + 0.5) / vec2f(v.dims.xy) * 2.0 - 1.0;
-    if l.kind == 0u {
+    if l.kind == LIGHT_DIRECTIONAL {
         let b = light_basis(l.direction);
         let across = vec2f(xy) * v.spacing - v.radius;
         return MediaColumn(v.centre + b[0] * across.x + b[1] * across.y - l.direction * v.radius, l.direction);
@@ -472,7 +477,7 @@ fn media_column(l: Light, v: LightMedia, xy: vec2u) -> MediaColumn {
 
 // Continuous node coordinate of p in light `l`'s volume `v` (nodes at integers).
 fn media_coord(l: Light, v: LightMedia, p: vec3f) -> vec3f {
-    if l.kind == 0u {
+    if l.kind == LIGHT_DIRECTIONAL {
         let b = light_basis(l.direction);
         let d = p - v.centre;
         return (vec3f(dot(d, b[0]), dot(d, b[1]), dot(d, l.direction)) + v.radius) / v.spacing;

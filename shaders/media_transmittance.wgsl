@@ -25,7 +25,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
             let first = v.offset + gid.x + v.dims.x * gid.y;
             let stride = v.dims.x * v.dims.y;
             // Outside a spot's cone no light arrives: nothing to dim, nothing to march.
-            let dark = l.kind == 2u && dot(c.dir, l.direction) < l.cos_outer;
+            let dark = l.kind == LIGHT_SPOT && dot(c.dir, l.direction) < l.cos_outer;
             var tau = 0.0;
             media_t[first] = 0.0;
             for (var k = 1u; k < v.dims.z; k++) {

@@ -6,7 +6,7 @@
 
 use fogcast::gpu::GpuContext;
 use fogcast::render::trace_shadow_rays;
-use fogcast::scene::{Bvh, Ray, Scene};
+use fogcast::scene::{Bvh, LightKind, Ray, Scene};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::path::Path;
@@ -78,7 +78,7 @@ fn make_rays(scene: &Scene, n: usize) -> Vec<(Kind, Ray)> {
     let to_sun = -scene
         .lights
         .iter()
-        .find(|l| l.kind == 0)
+        .find(|l| l.kind == LightKind::Directional)
         .expect("sponza.toml has a sun")
         .direction;
     let mut rng = Rng(0x5eed_f0c4_57a1_2345);

@@ -4,7 +4,7 @@
 //! the shadow rays' transmittance against a brute-force sum of the density, and the
 //! pixel box filter. Images are 1×1 to 12×6 pixels of linear radiance.
 
-use fogcast::scene::{density_at, Bvh, Camera, Medium, MediumKind, Noise, Scene};
+use fogcast::scene::{density_at, Bvh, Camera, LightKind, Medium, MediumKind, Noise, Scene};
 use fogcast::truth::{render_truth_radiance, ShadowMedia, TruthSettings};
 use glam::{DVec3, Vec3};
 use std::f64::consts::PI;
@@ -406,7 +406,7 @@ fn shadow_transmittance_matches_brute_force_and_is_converged() {
                 .zip(lights.iter().cycle())
                 .map(|(u, l)| {
                     let p = m.min + (m.max - m.min) * *u * Vec3::new(1.0, 0.5, 1.0);
-                    if l.kind == 0 {
+                    if l.kind == LightKind::Directional {
                         (p, -l.direction, 200.0)
                     } else {
                         let d = l.position - p;

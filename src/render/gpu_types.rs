@@ -101,7 +101,7 @@ impl From<&Light> for LightGpu {
     fn from(l: &Light) -> Self {
         LightGpu {
             position: l.position.to_array(),
-            kind: l.kind,
+            kind: l.kind.gpu_code(),
             direction: l.direction.to_array(),
             cos_outer: l.cos_outer,
             radiance: l.radiance.to_array(),

@@ -22,7 +22,7 @@
 use super::gpu_types::LightMediaGpu;
 use super::{dispatch, Stage, Timestamps};
 use crate::gpu::GpuContext;
-use crate::scene::Scene;
+use crate::scene::{LightKind, Scene};
 use glam::Vec3;
 
 /// Texels a side of a point or spot light's map of directions.
@@ -52,7 +52,7 @@ pub(crate) fn plan(scene: &Scene, spacing_m: f32) -> Vec<LightMediaGpu> {
                 offset,
                 ..Default::default()
             };
-            if l.kind == 0 {
+            if l.kind == LightKind::Directional {
                 // Columns across the bounding sphere, nodes along the light through it.
                 let fit = |s: f32| (2.0 * radius / s).ceil() as u32 + 1;
                 let mut s = spacing_m;

@@ -11,7 +11,7 @@
 use super::gbuffer::{depth_test, dynamic_uniform_layout};
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
 use crate::gpu::{storage_entry, GpuContext};
-use crate::scene::{Light, Scene};
+use crate::scene::{Light, LightKind, Scene};
 use glam::{Mat4, Vec3};
 
 const VIEW_STRIDE: u64 = 256;
@@ -211,7 +211,7 @@ impl ShadowMaps {
                 .lights
                 .iter()
                 .enumerate()
-                .filter(|(_, l)| l.kind == 0)
+                .filter(|(_, l)| l.kind == LightKind::Directional)
                 .map(|(i, _)| i)
                 .collect()
         };

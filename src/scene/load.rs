@@ -5,8 +5,8 @@
 use super::format::NameAndCamera;
 use super::validate::{validate_lights, validate_media, validate_render};
 use super::{
-    builtin_scene, gltf_load, media, mesh, CameraPath, Light, Mover, Scene, SceneDesc, SceneError,
-    MAX_LIGHTS,
+    builtin_scene, gltf_load, media, mesh, CameraPath, Light, LightKind, Mover, Scene, SceneDesc,
+    SceneError, MAX_LIGHTS,
 };
 use glam::Vec3;
 use serde::de::DeserializeOwned;
@@ -187,7 +187,7 @@ fn rank_lights(
     let placed: Vec<Light> = lights
         .into_iter()
         .map(|(mut l, world_pos)| {
-            if l.kind != 0 {
+            if l.kind != LightKind::Directional {
                 l.position = (world_pos - origin).as_vec3();
             }
             if let Some(sw) = l.swing.as_mut() {
@@ -202,7 +202,7 @@ fn rank_lights(
     let centre = (bounds.0 + bounds.1) * 0.5;
     let strength = |l: &Light| -> f32 {
         let lum = l.radiance.dot(Vec3::new(0.2126, 0.7152, 0.0722));
-        if l.kind == 0 {
+        if l.kind == LightKind::Directional {
             lum
         } else {
             lum / l.position.distance_squared(centre).max(1.0)

@@ -34,7 +34,7 @@ pub use load::load_camera_path;
 pub use media::{density_at, hg_phase, sample_media, MediumSample};
 pub use mesh::TriangleMesh;
 pub use mover::{movers_mesh_at, Mover, MoverDesc};
-pub use types::{Light, Medium, Scene, Swing, MAX_LIGHTS};
+pub use types::{Light, LightKind, Medium, Scene, Swing, MAX_LIGHTS};
 
 pub(crate) use error::invalid;
 pub(crate) use validate::{check_finite, check_range};

@@ -19,11 +19,33 @@ pub struct Swing {
     pub period_s: f32,
 }
 
+/// What shape of light a [`Light`] is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LightKind {
+    /// A sun: parallel rays along `direction`, no position.
+    Directional,
+    /// Radiates from `position` in every direction (inverse-square falloff).
+    Point,
+    /// A point light limited to a cone around `direction`.
+    Spot,
+}
+
+impl LightKind {
+    /// The code of this kind in `Light.kind` of shaders/common.wgsl (`LIGHT_*`).
+    pub fn gpu_code(self) -> u32 {
+        match self {
+            LightKind::Directional => 0,
+            LightKind::Point => 1,
+            LightKind::Spot => 2,
+        }
+    }
+}
+
 /// A validated light in the form the renderers use.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Light {
-    /// 0 directional, 1 point, 2 spot.
-    pub kind: u32,
+    /// Directional, point or spot.
+    pub kind: LightKind,
     /// Position (point/spot), metres, in render space.
     pub position: Vec3,
     /// Unit direction of travel (directional/spot).
@@ -46,7 +68,7 @@ impl Light {
         let rot = glam::Quat::from_axis_angle(sw.axis, sw.amplitude_rad * phase as f32);
         let mut l = *self;
         l.direction = (rot * self.direction).normalize();
-        if l.kind != 0 {
+        if l.kind != LightKind::Directional {
             l.position = sw.pivot + rot * (self.position - sw.pivot);
         }
         l

@@ -1,7 +1,9 @@
 //! The checks of every value a scene file gives (ranges, finiteness, the fields each kind
 //! needs); errors name the field and the offending value.
 
-use super::{invalid, Light, LightDesc, MediumDesc, MediumKind, RenderDefaults, SceneError, Swing};
+use super::{
+    invalid, Light, LightDesc, LightKind, MediumDesc, MediumKind, RenderDefaults, SceneError, Swing,
+};
 use glam::Vec3;
 
 pub(crate) fn check_finite(field: &str, v: &[f32]) -> Result<(), SceneError> {
@@ -92,7 +94,7 @@ pub(super) fn validate_lights(
                 ..
             } => (
                 Light {
-                    kind: 0,
+                    kind: LightKind::Directional,
                     position: Vec3::ZERO,
                     direction: unit("direction", direction)?,
                     radiance: radiance(color, intensity)?,
@@ -111,7 +113,7 @@ pub(super) fn validate_lights(
                 check_finite(&f("position"), &position)?;
                 (
                     Light {
-                        kind: 1,
+                        kind: LightKind::Point,
                         position: Vec3::ZERO,
                         direction: Vec3::Y,
                         radiance: radiance(color, intensity)?,
@@ -148,7 +150,7 @@ pub(super) fn validate_lights(
                 )?;
                 (
                     Light {
-                        kind: 2,
+                        kind: LightKind::Spot,
                         position: Vec3::ZERO,
                         direction: unit("direction", direction)?,
                         radiance: radiance(color, intensity)?,

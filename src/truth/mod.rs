@@ -38,7 +38,8 @@
 //! fog (street: 43×, six lights through 60 m of noisy height fog).
 
 use crate::scene::{
-    density_at, hg_phase, sample_media, Bvh, Camera, Light, Medium, MediumKind, Ray, Scene,
+    density_at, hg_phase, sample_media, Bvh, Camera, Light, LightKind, Medium, MediumKind, Ray,
+    Scene,
 };
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -112,7 +113,7 @@ pub struct TruthCounts {
 
 /// Direction from `p` towards the light and the shadow-ray length (common.wgsl `to_light`).
 fn to_light(l: &Light, p: Vec3, max_ray_m: f32) -> (Vec3, f32) {
-    if l.kind == 0 {
+    if l.kind == LightKind::Directional {
         return (-l.direction, max_ray_m);
     }
     let d = l.position - p;
@@ -122,12 +123,12 @@ fn to_light(l: &Light, p: Vec3, max_ray_m: f32) -> (Vec3, f32) {
 
 /// Radiance arriving at `p`, ignoring occlusion (common.wgsl `light_radiance`).
 fn light_radiance(l: &Light, p: Vec3) -> Vec3 {
-    if l.kind == 0 {
+    if l.kind == LightKind::Directional {
         return l.radiance;
     }
     let d = l.position - p;
     let mut r = l.radiance / d.length_squared().max(0.01);
-    if l.kind == 2 {
+    if l.kind == LightKind::Spot {
         let c = (-d / d.length().max(1e-6)).dot(l.direction);
         let t = ((c - l.cos_outer) / (l.cos_inner - l.cos_outer)).clamp(0.0, 1.0);
         r *= t * t * (3.0 - 2.0 * t);
