@@ -200,12 +200,12 @@ impl GpuContext {
             })
     }
 
-    /// A bind group layout of storage buffers for compute, `true` = read-write.
-    pub fn storage_layout(&self, label: &str, read_write: &[bool]) -> wgpu::BindGroupLayout {
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = read_write
+    /// A bind group layout of storage buffers for compute, bindings 0, 1, … in order.
+    pub fn storage_layout(&self, label: &str, access: &[Access]) -> wgpu::BindGroupLayout {
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = access
             .iter()
             .enumerate()
-            .map(|(i, rw)| storage_entry(i as u32, !rw))
+            .map(|(i, a)| storage_entry(i as u32, *a))
             .collect();
         self.device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -263,13 +263,24 @@ impl GpuContext {
     }
 }
 
+/// How a compute stage may use a storage buffer binding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// `var<storage, read>`.
+    Read,
+    /// `var<storage, read_write>`.
+    ReadWrite,
+}
+
 /// A compute-visible storage buffer binding.
-pub fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+pub fn storage_entry(binding: u32, access: Access) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
         ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
+            ty: wgpu::BufferBindingType::Storage {
+                read_only: access == Access::Read,
+            },
             has_dynamic_offset: false,
             min_binding_size: None,
         },

@@ -1,6 +1,7 @@
 //! Composite + tone map, all viewers in one dispatch, with `shaders/composite.wgsl`.
 
 use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerSet};
+use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the composite stage.
@@ -28,8 +29,8 @@ impl Composite {
             ctx,
             "composite",
             vec![
-                storage_entry(0, true),
-                storage_entry(1, false),
+                storage_entry(0, Read),
+                storage_entry(1, ReadWrite),
                 texture_entry(2),
                 texture_entry(3),
                 texture_entry(4),

@@ -5,6 +5,7 @@
 
 use super::composite::texture_entry;
 use super::{dispatch, Stage, Timestamps, ViewerSet};
+use crate::gpu::Access::ReadWrite;
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipelines of the two culling passes.
@@ -21,8 +22,8 @@ impl FroxelCull {
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("froxel cull"),
                 entries: &[
-                    storage_entry(0, false),
-                    storage_entry(1, false),
+                    storage_entry(0, ReadWrite),
+                    storage_entry(1, ReadWrite),
                     texture_entry(2),
                 ],
             });

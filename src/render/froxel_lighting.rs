@@ -3,6 +3,7 @@
 
 use super::gpu_types::{ViewGpu, NO_HISTORY};
 use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerId, ViewerSet, ViewerVolumes};
+use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
 use glam::Mat4;
 use std::collections::HashMap;
@@ -90,7 +91,7 @@ impl FroxelLighting {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
         let layout = ctx.storage_layout(
             "froxel lighting",
-            &[false, false, true, false, false, false],
+            &[Read, Read, ReadWrite, Read, Read, Read],
         );
         let module = super::stage_shader(
             ctx,

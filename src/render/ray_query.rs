@@ -2,6 +2,7 @@
 //! any-hit `occluded()` of `shaders/bvh.wgsl` that every stage traces, exposed so tests
 //! can hold it against the CPU traversals of [`Bvh`].
 
+use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::{storage_entry, GpuContext};
 use crate::scene::{Bvh, Ray};
 
@@ -54,7 +55,7 @@ impl ShadowRayQuery {
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("ray query scene"),
-                entries: &[storage_entry(4, true), storage_entry(5, true)],
+                entries: &[storage_entry(4, Read), storage_entry(5, Read)],
             });
         let scene_bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("ray query scene"),
@@ -70,7 +71,7 @@ impl ShadowRayQuery {
                 },
             ],
         });
-        let rays_layout = ctx.storage_layout("ray query segments", &[false, true]);
+        let rays_layout = ctx.storage_layout("ray query segments", &[Read, ReadWrite]);
         let module = super::stage_shader(
             ctx,
             "ray_query",

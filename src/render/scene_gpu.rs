@@ -1,6 +1,7 @@
 //! Scene data on the GPU, shared by every stage (bind group 0) and the raster.
 
 use super::gpu_types::{FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ViewGpu, COUNTERS};
+use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, GpuBvhNode, GpuTriangle, Scene, TriangleMesh};
 use glam::Vec3;
@@ -229,7 +230,9 @@ impl SceneGpu {
         let light_media = ctx.storage_init("light media", light_media, wgpu::BufferUsages::empty());
         let layout = ctx.storage_layout(
             "scene",
-            &[false, false, false, false, false, false, true, true, false],
+            &[
+                Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite, Read,
+            ],
         );
 
         // Raster vertices and indices: the static mesh in clusters, then the movers (whose

@@ -3,6 +3,7 @@
 //! looked up in it (`shaders/shadow_lookup.wgsl`) instead of traced.
 
 use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerSet};
+use crate::gpu::Access::ReadWrite;
 use crate::gpu::{storage_entry, GpuContext};
 
 /// Pipeline of the shadow frustum update.
@@ -13,7 +14,8 @@ pub(crate) struct ShadowFrustum {
 
 impl ShadowFrustum {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ShadowMaps::stage_layout(ctx, "shadow frustum", vec![storage_entry(0, false)]);
+        let layout =
+            ShadowMaps::stage_layout(ctx, "shadow frustum", vec![storage_entry(0, ReadWrite)]);
         let module = super::stage_shader(
             ctx,
             "shadow_frustum",

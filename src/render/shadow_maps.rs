@@ -10,6 +10,7 @@
 
 use super::gbuffer::{depth_test, dynamic_uniform_layout};
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
+use crate::gpu::Access::Read;
 use crate::gpu::{storage_entry, GpuContext};
 use crate::scene::{Light, LightKind, Scene};
 use glam::{Mat4, Vec3};
@@ -375,7 +376,7 @@ impl ShadowMaps {
                 ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
                 count: None,
             },
-            storage_entry(7, true),
+            storage_entry(7, Read),
             depth_array(8),
         ]
     }

@@ -10,6 +10,7 @@
 use super::froxel_cull::FroxelCull;
 use super::gpu_types::{FLAG_CACHE, FLAG_DEMAND, FLAG_SPARSE};
 use super::{dispatch, Settings, Stage, Timestamps, ViewerSet};
+use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
 use glam::{UVec3, Vec3};
 
@@ -190,8 +191,12 @@ impl SharedShadowGrid {
             ctx.max_storage_binding as f64 / 1048576.0,
             if policy.sparse() { "" } else { " or a sparse grid (--brick-pool N)" }
         );
-        let layout = ctx.storage_layout("shared grid", &[true, true, false, true, false]);
-        let request_layout = ctx.storage_layout("grid requests", &[true, true, true, false]);
+        let layout = ctx.storage_layout(
+            "shared grid",
+            &[ReadWrite, ReadWrite, Read, ReadWrite, Read],
+        );
+        let request_layout =
+            ctx.storage_layout("grid requests", &[ReadWrite, ReadWrite, ReadWrite, Read]);
         let request_module = super::stage_shader(
             ctx,
             "grid_requests",

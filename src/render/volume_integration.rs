@@ -2,6 +2,7 @@
 //! viewers in one dispatch, with `shaders/volume_integration.wgsl`.
 
 use super::{dispatch, Stage, Timestamps, ViewerSet};
+use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
 
 /// Pipeline of the volume integration stage.
@@ -12,7 +13,7 @@ pub(crate) struct VolumeIntegration {
 
 impl VolumeIntegration {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ctx.storage_layout("volume integration", &[false, true]);
+        let layout = ctx.storage_layout("volume integration", &[Read, ReadWrite]);
         let module = super::stage_shader(
             ctx,
             "volume_integration",
