@@ -17,6 +17,7 @@ mod gpu_types;
 mod history_tests;
 mod media_transmittance;
 mod ray_query;
+mod readback;
 mod scene_gpu;
 mod settings;
 mod shadow_frustum;
@@ -24,6 +25,7 @@ mod shadow_maps;
 mod shared_grid;
 mod stage;
 mod stats;
+mod target;
 mod viewer_set;
 mod viewer_volumes;
 mod volume_integration;
@@ -33,14 +35,16 @@ pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub use settings::{Mode, Settings};
 pub use shared_grid::{GridUpdate, SharedShadowGrid};
 pub use stage::{Scope, Stage};
-pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming};
+pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
+pub use target::{FrameOutput, FrameTarget, TargetView, TargetsOutput};
 pub use viewer_set::ViewerId;
 pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
 pub use world::{Lookup, World};
 
-use crate::gpu::{map_read, GpuContext};
+use crate::gpu::GpuContext;
 use crate::scene::{Bvh, Camera, Scene};
 use gpu_types::*;
+use readback::{Readback, ReadbackBytes};
 pub(crate) use stage::{dispatch, Timestamps};
 use std::collections::btree_map::Entry;
 use std::collections::BTreeMap;
@@ -63,130 +67,6 @@ pub(crate) fn stage_shader(ctx: &GpuContext, label: &str, stage: &str) -> wgpu::
         include_str!("../../shaders/count_atomic.wgsl")
     };
     ctx.shader(label, &[COMMON_WGSL, count, BVH_WGSL, stage])
-}
-
-/// One viewer of a [`FrameTarget`]: who it is, where it looks from, and where its
-/// tile lies in the target's frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TargetView {
-    /// Stable across frames: the viewer's history follows it.
-    pub id: ViewerId,
-    /// The camera.
-    pub camera: Camera,
-    /// Top-left pixel of the viewer's tile in the frame.
-    pub origin: [u32; 2],
-}
-
-/// One image a frame produces (a session's frame): its viewers, all of one view size,
-/// tiled into it. The composite writes every tile in place; pixels no tile covers are
-/// opaque black.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameTarget {
-    /// Frame size, pixels.
-    pub width: u32,
-    /// Frame size, pixels.
-    pub height: u32,
-    /// Size of every viewer's tile.
-    pub view_width: u32,
-    /// Size of every viewer's tile.
-    pub view_height: u32,
-    /// The viewers.
-    pub views: Vec<TargetView>,
-}
-
-impl FrameTarget {
-    /// A frame of one viewer.
-    pub fn single(id: ViewerId, camera: Camera, width: u32, height: u32) -> FrameTarget {
-        FrameTarget {
-            width,
-            height,
-            view_width: width,
-            view_height: height,
-            views: vec![TargetView {
-                id,
-                camera,
-                origin: [0, 0],
-            }],
-        }
-    }
-
-    fn pixels(&self) -> u64 {
-        self.width as u64 * self.height as u64
-    }
-
-    fn validate(&self) -> anyhow::Result<()> {
-        let (w, h) = (self.view_width, self.view_height);
-        anyhow::ensure!(
-            (1..=8192).contains(&w) && (1..=8192).contains(&h),
-            "viewer size {w}×{h}: must be 1..=8192 on each side"
-        );
-        anyhow::ensure!(!self.views.is_empty(), "a frame needs at least one viewer");
-        for v in &self.views {
-            let c = &v.camera;
-            anyhow::ensure!(
-                c.position.is_finite()
-                    && c.forward.is_finite()
-                    && c.fov_y.is_finite()
-                    && c.fov_y > 0.0
-                    && c.fov_y < 3.1,
-                "viewer {}: camera {c:?} is not finite or its field of view is out of range",
-                v.id
-            );
-            anyhow::ensure!(
-                v.origin[0] as u64 + w as u64 <= self.width as u64
-                    && v.origin[1] as u64 + h as u64 <= self.height as u64,
-                "viewer {}: its {w}×{h} tile at {:?} is outside the {}×{} frame",
-                v.id,
-                v.origin,
-                self.width,
-                self.height
-            );
-        }
-        Ok(())
-    }
-
-    /// Paints the pixels no tile covers opaque black.
-    fn fill_uncovered(&self, image: &mut [u8]) {
-        if self.views.len() as u64 * self.view_width as u64 * self.view_height as u64
-            == self.pixels()
-        {
-            return;
-        }
-        let covered = |x: u32, y: u32| {
-            self.views.iter().any(|v| {
-                (v.origin[0]..v.origin[0] + self.view_width).contains(&x)
-                    && (v.origin[1]..v.origin[1] + self.view_height).contains(&y)
-            })
-        };
-        for (i, px) in image.chunks_exact_mut(4).enumerate() {
-            let (x, y) = (i as u32 % self.width, i as u32 / self.width);
-            if !covered(x, y) {
-                px.copy_from_slice(&[0, 0, 0, 255]);
-            }
-        }
-    }
-}
-
-/// One rendered frame: an RGBA8 image per viewer and the frame's counters.
-#[derive(Debug, Clone)]
-pub struct FrameOutput {
-    /// Width of every image, pixels.
-    pub width: u32,
-    /// Height of every image, pixels.
-    pub height: u32,
-    /// One tightly packed RGBA8 image per viewer.
-    pub images: Vec<Vec<u8>>,
-    /// Counters, memory and timings.
-    pub stats: FrameStats,
-}
-
-/// One rendered frame of [`Renderer::render_targets`]: an RGBA8 image per target.
-#[derive(Debug, Clone)]
-pub struct TargetsOutput {
-    /// One tightly packed RGBA8 frame per target, in the order given.
-    pub images: Vec<Vec<u8>>,
-    /// Counters, memory and timings of the whole frame.
-    pub stats: FrameStats,
 }
 
 /// The per-viewer stages' pipelines, shared by every viewer set.
@@ -542,71 +422,6 @@ fn dispatches(
         out.extend(groups.into_iter().map(|g| (stage.name(), g)));
     }
     out
-}
-
-/// The frame's one readback: counters, timestamps and every set's output in one buffer.
-struct Readback {
-    staging: wgpu::Buffer,
-    counters: u64,
-    ticks: (u64, u64),
-    outputs: Vec<(u64, u64)>,
-}
-
-/// What a [`Readback`] brought back.
-struct ReadbackBytes {
-    counters: Vec<u32>,
-    ticks: Vec<u64>,
-    outputs: Vec<Vec<u8>>,
-}
-
-impl Readback {
-    fn record(
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        world: &World,
-        sets: &BTreeMap<(u32, u32), ViewerSet>,
-        ts: &Timestamps,
-    ) -> Readback {
-        let align = |n: u64| n.next_multiple_of(256);
-        let counters = world.gpu.counters.size();
-        let tick_bytes = ts.frame_bytes();
-        let mut at = align(counters) + align(tick_bytes);
-        let outputs: Vec<(u64, u64)> = sets
-            .values()
-            .map(|s| {
-                let range = (at, s.vol.output_pixels * 4);
-                at += align(range.1);
-                range
-            })
-            .collect();
-        let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("frame readback"),
-            size: at.max(16),
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        enc.copy_buffer_to_buffer(&world.gpu.counters, 0, &staging, 0, counters);
-        ts.resolve(enc, &staging, align(counters));
-        for (set, (offset, bytes)) in sets.values().zip(&outputs) {
-            enc.copy_buffer_to_buffer(&set.vol.output, 0, &staging, *offset, *bytes);
-        }
-        Readback {
-            staging,
-            counters,
-            ticks: (align(counters), tick_bytes),
-            outputs,
-        }
-    }
-
-    fn map(self, ctx: &GpuContext) -> anyhow::Result<ReadbackBytes> {
-        let bytes = map_read(&ctx.device, &self.staging)?;
-        let range = |(at, n): (u64, u64)| &bytes[at as usize..(at + n) as usize];
-        Ok(ReadbackBytes {
-            counters: bytemuck::pod_collect_to_vec(range((0, self.counters))),
-            ticks: bytemuck::pod_collect_to_vec(range(self.ticks)),
-            outputs: self.outputs.iter().map(|r| range(*r).to_vec()).collect(),
-        })
-    }
 }
 
 /// IEEE 754 binary16 bits to f32, exactly (subnormals, inf and NaN included).
