@@ -178,3 +178,20 @@ fn uncovered_tiles_are_opaque_black_and_views_land_in_their_tiles() {
         }
     }
 }
+
+#[test]
+fn after_invalidate_a_frame_is_computed_from_scratch() {
+    let scene = colonnade();
+    let cams = scene.camera.viewers(2, 0.0);
+    let mut r = Renderer::new(gpu(), scene.clone(), Settings::default()).unwrap();
+    let first = r.render(&cams, 96, 54, 0.0).unwrap();
+    let cached = r.render(&cams, 96, 54, 0.0).unwrap();
+    assert!(
+        cached.stats.rays.shared_grid < first.stats.rays.shared_grid,
+        "the second frame reads its grid from the cache"
+    );
+    r.invalidate();
+    let again = r.render(&cams, 96, 54, 0.0).unwrap();
+    assert_eq!(again.stats.rays.shared_grid, first.stats.rays.shared_grid);
+    assert!(again.images == first.images);
+}

@@ -135,6 +135,11 @@ impl MediaTransmittance {
         }
     }
 
+    /// Forgets which volumes are filled: the next frame refills them all.
+    pub(crate) fn invalidate(&mut self) {
+        self.filled = 0;
+    }
+
     /// Whether the frame reads transmittance from the volumes (`FLAG_MEDIA_T`).
     pub(crate) fn in_use(&self) -> bool {
         self.has_volumes

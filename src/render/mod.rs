@@ -131,6 +131,13 @@ impl Renderer {
         })
     }
 
+    /// After a frame that failed: the next frame starts from scratch (every light
+    /// changed, every viewer without history), whatever the failed one left behind.
+    pub fn invalidate(&mut self) {
+        self.world.invalidate();
+        self.sets.clear();
+    }
+
     /// The settings in force.
     pub fn settings(&self) -> &Settings {
         &self.world.settings

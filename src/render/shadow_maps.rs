@@ -412,6 +412,13 @@ impl ShadowMaps {
         self.scene_maps.bytes(n) + self.mover_maps.bytes(n)
     }
 
+    /// Forgets what the maps were rendered for: the next frame renders them all.
+    pub(crate) fn invalidate(&mut self) {
+        self.scene_maps.rendered_for = None;
+        self.mover_maps.rendered_for = None;
+        self.movers_time = None;
+    }
+
     /// Re-renders the static maps if a directional light turned, and the movers' maps if
     /// the movers moved; returns whether it recorded anything.
     pub(crate) fn add_passes(

@@ -112,6 +112,17 @@ impl World {
         })
     }
 
+    /// Forgets what changed since which frame, so that the next frame treats every
+    /// light as changed: the grid re-traces its cached bits, the shadow maps and the
+    /// transmittance volumes are rendered again. For after a frame that failed half-way
+    /// (its change tracking may have moved on without its work reaching the GPU).
+    pub(crate) fn invalidate(&mut self) {
+        self.lights_uploaded = None;
+        self.movers_time = None;
+        self.shadow_maps.invalidate();
+        self.transmittance.invalidate();
+    }
+
     /// Whether the scene has media (else no froxel stage runs).
     pub(crate) fn has_media(&self) -> bool {
         !self.scene.media.is_empty()

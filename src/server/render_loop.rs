@@ -259,6 +259,11 @@ impl RenderLoop {
             Ok(Ok(out)) => Ok(out),
             Ok(Err(e)) => {
                 self.hub.telemetry.render_errors.fetch_add(1, Relaxed);
+                // The failed frame may have moved the world's change tracking on without
+                // its work reaching the GPU.
+                if let Some(r) = &mut self.renderer {
+                    r.invalidate();
+                }
                 Err(format!("{e:#}"))
             }
             Err(panic) => {
