@@ -54,9 +54,11 @@ pub(crate) fn plan(scene: &Scene, spacing_m: f32) -> Vec<LightMediaGpu> {
             };
             if l.kind == 0 {
                 // Columns across the bounding sphere, nodes along the light through it.
+                // Counted in u64: media kilometres wide at the default spacing need
+                // more than 2³² nodes before the spacing grows.
                 let fit = |s: f32| (2.0 * radius / s).ceil() as u32 + 1;
                 let mut s = spacing_m;
-                while fit(s).pow(3) > MAX_NODES_PER_LIGHT {
+                while u64::from(fit(s)).pow(3) > u64::from(MAX_NODES_PER_LIGHT) {
                     s *= 1.05;
                 }
                 v.dims = [fit(s); 3];
