@@ -91,13 +91,13 @@ pub(crate) fn plan(scene: &Scene, spacing_m: f32) -> Vec<LightMediaGpu> {
         .collect()
 }
 
-/// Whether any medium moves over time (noise carried by wind): then every light's
-/// volume is refilled every frame.
+/// Whether any medium moves over time (noise carried by wind, a moving volume): then
+/// every light's volume is refilled every frame.
 pub(crate) fn media_animated(scene: &Scene) -> bool {
-    scene
-        .media
-        .iter()
-        .any(|m| m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
+    scene.media.iter().any(|m| {
+        (m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
+            || m.volume.is_some_and(|v| v.velocity != Vec3::ZERO)
+    })
 }
 
 /// The fill stage and what it knows of the volumes' freshness.
