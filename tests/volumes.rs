@@ -271,3 +271,39 @@ fn gpu_modes_match_truth_on_a_displaced_moving_volume() {
         assert!(flip <= 0.05, "{mode:?} vs truth mean FLIP {flip:.4} > 0.05");
     }
 }
+
+/// A moving volume refills `shared`'s transmittance volumes every frame and moves in the
+/// image; the same volume standing still is filled once.
+#[test]
+fn a_moving_volume_refills_the_shared_transmittance_every_frame() {
+    const SIZE: (u32, u32) = (64, 36);
+    let still = CLOUD.replace(
+        "motion = { velocity = [0.4, 0.0, 0.2], period_s = 10.0 }",
+        "",
+    );
+    for (text, moving) in [(CLOUD.to_string(), true), (still, false)] {
+        let scene = Arc::new(load(&text));
+        let bvh = Bvh::build(&scene.mesh).unwrap();
+        let cams = cameras(&scene);
+        let settings = Settings {
+            mode: Mode::Shared,
+            voxel_size_m: scene.render.voxel_size_m,
+            ..Settings::default()
+        };
+        let mut r = Renderer::with_bvh(gpu(), scene.clone(), &bvh, settings).unwrap();
+        let frames: Vec<_> = (0..3)
+            .map(|i| r.render(&cams, SIZE.0, SIZE.1, 0.5 * i as f32).unwrap())
+            .collect();
+        let first = frames[0].stats.transmittance_nodes;
+        assert!(first > 0);
+        for f in &frames[1..] {
+            let refilled = f.stats.transmittance_nodes;
+            assert_eq!(refilled, if moving { first } else { 0 }, "moving {moving}");
+        }
+        assert_eq!(
+            frames[1].images != frames[2].images,
+            moving,
+            "moving {moving}: whether the image changes"
+        );
+    }
+}
