@@ -47,16 +47,17 @@ fn volume_shape(v: &VolumeDesc) -> Volume {
     let (velocity, period_s) = v
         .motion
         .map_or((Vec3::ZERO, 1.0), |m| (Vec3::from(m.velocity), m.period_s));
-    // A seed moves the noise by whole lattice cells times an irrational-looking step, so
-    // seeds give unrelated shapes (the offset is at most ~2·10⁴ cells: f32 keeps 1e-3).
-    let seed = d.seed as f32;
+    // A seed moves the noise by whole lattice cells, so seeds give unrelated shapes;
+    // below 251 cells on each axis so that f32 keeps the finest octave's detail (the
+    // sixth octave doubles the offset five times: still under 10⁴ cells, ulp 10⁻³).
+    let cells = |k: u32| (d.seed * k % 251) as f32;
     Volume {
         center: Vec3::from(v.center),
         radius_m: v.radius,
         amplitude: d.amplitude,
         frequency: d.frequency,
         octaves: d.octaves,
-        noise_offset: Vec3::new(17.0, 11.0, 23.0) * seed,
+        noise_offset: Vec3::new(cells(17), cells(11), cells(23)),
         velocity,
         period_s,
     }
