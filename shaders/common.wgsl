@@ -93,7 +93,7 @@ struct Light {
 
 struct Medium {
     min: vec3f,
-    kind: u32,        // 0 constant, 1 height, 2 box, 3 sphere
+    kind: u32,        // 0 constant, 1 height, 2 box, 3 sphere, 4 volume
     max: vec3f,
     absorption: f32,
     scattering: vec3f,
@@ -106,6 +106,17 @@ struct Medium {
     noise_octaves: u32,
     noise_amplitude: f32,
     _pad: u32,
+    // Volume primitives (kind 4; `radius_or_falloff` is their radius).
+    center: vec3f,
+    period_s: f32,
+    velocity: vec3f,
+    disp_amplitude: f32,
+    disp_offset: vec3f,
+    disp_frequency: f32,
+    disp_octaves: u32,
+    _pad2: u32,
+    _pad3: u32,
+    _pad4: u32,
 }
 
 @group(0) @binding(0) var<storage, read> frame: Frame;
@@ -310,12 +321,48 @@ fn fbm(p: vec3f, octaves: u32) -> f32 {
     return sum / norm;
 }
 
+// Width of a volume's soft edge as a fraction of its radius (media.rs VOLUME_EDGE_FRACTION).
+const VOLUME_EDGE_FRACTION: f32 = 0.05;
+
+// A volume's centre at the frame's time: the motion wraps every period (types.rs
+// `Volume::center_at`).
+fn volume_center(m: Medium) -> vec3f {
+    let x = frame.time_s / m.period_s + 0.5;
+    return m.center + m.velocity * (m.period_s * (x - floor(x) - 0.5));
+}
+
+// Density of a displaced-sphere volume (paper 004 §5.3; media.rs `volume_density`):
+// smoothstep((R(û) − ρ)/w), R(û) = r·(1 + a·(2·fbm(f·û + offset) − 1)), w = 0.05·r.
+fn volume_density(m: Medium, p: vec3f) -> f32 {
+    let q = p - volume_center(m);
+    let rho_sq = dot(q, q);
+    let r = m.radius_or_falloff;
+    let outer = r * (1.0 + m.disp_amplitude);
+    if rho_sq >= outer * outer {
+        return 0.0;
+    }
+    let edge = VOLUME_EDGE_FRACTION * r;
+    let inner = r * (1.0 - m.disp_amplitude) - edge;
+    if rho_sq <= inner * inner {
+        return 1.0;
+    }
+    let rho = sqrt(rho_sq);
+    var surface = r;
+    if m.disp_amplitude > 0.0 {
+        let n = fbm(q / rho * m.disp_frequency + m.disp_offset, m.disp_octaves);
+        surface = r * (1.0 + m.disp_amplitude * (2.0 * n - 1.0));
+    }
+    let x = clamp((surface - rho) / edge, 0.0, 1.0);
+    return x * x * (3.0 - 2.0 * x);
+}
+
 fn medium_density(m: Medium, p: vec3f) -> f32 {
     let inside_box = all(p >= m.min) && all(p <= m.max);
     var d = 0.0;
     switch m.kind {
         case 0u, 2u: { d = select(0.0, 1.0, inside_box); }
         case 1u: { d = select(0.0, exp(-max(p.y - m.base_y, 0.0) / m.radius_or_falloff), inside_box); }
+        case 4u: { d = volume_density(m, p); }
         default: {
             let c = (m.min + m.max) * 0.5;
             let q = p - c;
@@ -374,10 +421,17 @@ fn medium_span(m: Medium, p: vec3f, dir: vec3f, dist: f32) -> vec2f {
     let hi = max(a, b);
     var t0 = max(max(lo.x, lo.y), max(lo.z, 0.0));
     var t1 = min(min(hi.x, hi.y), min(hi.z, dist));
-    if m.kind == 3u {
-        let oc = p - (m.min + m.max) * 0.5;
+    if m.kind == 3u || m.kind == 4u {
+        // A volume: the sphere of its outer radius where it is now.
+        var centre = (m.min + m.max) * 0.5;
+        var radius = m.radius_or_falloff;
+        if m.kind == 4u {
+            centre = volume_center(m);
+            radius *= 1.0 + m.disp_amplitude;
+        }
+        let oc = p - centre;
         let b_half = dot(oc, dir);
-        let disc = b_half * b_half - (dot(oc, oc) - m.radius_or_falloff * m.radius_or_falloff);
+        let disc = b_half * b_half - (dot(oc, oc) - radius * radius);
         if disc < 0.0 {
             return vec2f(1.0, 0.0);
         }
@@ -393,7 +447,7 @@ const MAX_MARCH_STEPS: f32 = 32.0;
 
 // Optical depth ∫σt ds along p + dir·[0, dist] (dir unit): exact for homogeneous boxes,
 // spheres and constant media (σt × the length inside), midpoint quadrature with steps of
-// about `frame.media_step_m` through height and noisy media. Zero extinction gives 0 exactly.
+// about `frame.media_step_m` through height fog, noisy media and volumes. Zero extinction gives 0 exactly.
 fn media_optical_depth(p: vec3f, dir: vec3f, dist: f32) -> f32 {
     var tau = 0.0;
     for (var i = 0u; i < frame.medium_count; i++) {
@@ -407,7 +461,7 @@ fn media_optical_depth(p: vec3f, dir: vec3f, dist: f32) -> f32 {
         if len <= 0.0 {
             continue;
         }
-        if m.kind != 1u && m.noise_frequency <= 0.0 {
+        if m.kind != 1u && m.kind != 4u && m.noise_frequency <= 0.0 {
             tau += sigma * len;
             continue;
         }

@@ -53,6 +53,13 @@ fn may_have_media(p: vec3f) -> bool {
             if dot(q, q) <= m.radius_or_falloff * m.radius_or_falloff {
                 return true;
             }
+        } else if m.kind == 4u {
+            // A volume: the sphere of its outer radius where it is now.
+            let q = p - volume_center(m);
+            let outer = m.radius_or_falloff * (1.0 + m.disp_amplitude);
+            if dot(q, q) <= outer * outer {
+                return true;
+            }
         } else if inside_box {
             return true;
         }

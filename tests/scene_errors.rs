@@ -240,3 +240,101 @@ fn zero_area_triangles_are_dropped() {
     let scene = Scene::from_toml(&text, Path::new("inline.toml")).expect("loads");
     assert_eq!(scene.mesh.len(), 12 + 4 * 7);
 }
+
+/// `VALID` with a `[[volume]]` table whose line starting with `old` (if any) is `new`.
+fn with_volume(old: &str, new: &str) -> String {
+    let volume = "\n[[volume]]\ncenter = [0.0, 1.5, 0.0]\nradius = 1.0\n\
+                  scattering = [0.5, 0.5, 0.5]\nabsorption = 0.1\n\
+                  [volume.displacement]\namplitude = 0.3\nfrequency = 2.0\n\
+                  [volume.motion]\nvelocity = [1.0, 0.0, 0.0]\nperiod_s = 4.0\n";
+    let mut hits = 0;
+    let lines: Vec<&str> = volume
+        .lines()
+        .map(|line| {
+            if !old.is_empty() && line.starts_with(old) {
+                hits += 1;
+                new
+            } else {
+                line
+            }
+        })
+        .collect();
+    assert!(
+        old.is_empty() || hits == 1,
+        "test setup: `{old}` must start one line"
+    );
+    format!("{VALID}{}", lines.join("\n"))
+}
+
+#[test]
+fn a_valid_volume_loads_as_a_medium_bounded_over_its_path() {
+    let scene = Scene::from_toml(&with_volume("", ""), Path::new("inline.toml")).unwrap();
+    assert_eq!(scene.media.len(), 2);
+    let m = &scene.media[1];
+    // Path ±2 m along x, outer radius 1.3 m.
+    let size = m.max - m.min;
+    assert!(
+        (size - glam::Vec3::new(6.6, 2.6, 2.6)).abs().max_element() < 1e-4,
+        "{size}"
+    );
+}
+
+#[test]
+fn volume_values_out_of_range() {
+    let cases: [(String, &[&str]); 10] = [
+        (
+            with_volume("radius", "radius = 0.0"),
+            &["volume[0].radius", "0"],
+        ),
+        (
+            with_volume("radius", "radius = -2.5"),
+            &["volume[0].radius", "-2.5"],
+        ),
+        (
+            with_volume("radius", "radius = nan"),
+            &["volume[0].radius", "NaN"],
+        ),
+        (
+            with_volume("scattering", "scattering = [0.5, -0.25, 0.5]"),
+            &["volume[0].scattering", "-0.25"],
+        ),
+        (
+            with_volume("absorption", "absorption = -1.0"),
+            &["volume[0].absorption", "-1"],
+        ),
+        (
+            with_volume("center", "center = [0.0, nan, 0.0]"),
+            &["volume[0].center", "NaN"],
+        ),
+        (
+            with_volume("amplitude", "amplitude = 0.95"),
+            &["volume[0].displacement.amplitude", "0.95", "0.9"],
+        ),
+        (
+            with_volume("frequency", "frequency = inf"),
+            &["volume[0].displacement.frequency", "inf"],
+        ),
+        (
+            with_volume("period_s", "period_s = 0.0"),
+            &["volume[0].motion.period_s", "0"],
+        ),
+        (
+            with_volume("velocity", "velocity = [1e5, 0.0, 0.0]"),
+            &["volume[0].motion.velocity", "100000"],
+        ),
+    ];
+    for (text, parts) in cases {
+        assert_mentions(&load_error(&text), parts);
+    }
+}
+
+#[test]
+fn volumes_are_not_a_medium_kind_and_typos_are_named() {
+    let text = VALID.replace(
+        "[[medium]]\nkind = \"box\"",
+        "[[medium]]\nkind = \"volume\"",
+    );
+    assert_mentions(&load_error(&text), &["volume"]);
+    let msg = load_error(&with_volume("radius", "raduis = 1.0"));
+    assert_mentions(&msg, &["raduis"]);
+}

@@ -333,6 +333,7 @@ fn medium(kind: MediumKind, min: Vec3, max: Vec3, radius_or_falloff: f32, noise:
         radius_or_falloff,
         base_y: 0.0,
         noise,
+        volume: None,
     }
 }
 

@@ -1,6 +1,6 @@
 //! Host mirrors of the structs in `shaders/common.wgsl` (layouts must match byte for byte).
 
-use crate::scene::{Light, Medium, MediumKind};
+use crate::scene::{Light, Medium, MediumKind, Volume};
 use bytemuck::{Pod, Zeroable};
 
 pub(crate) const FLAG_PARITY: u32 = 1;
@@ -141,10 +141,29 @@ pub(crate) struct MediumGpu {
     pub noise_octaves: u32,
     pub noise_amplitude: f32,
     pub _pad: u32,
+    // Volume primitives (kind 4); zero otherwise.
+    pub center: [f32; 3],
+    pub period_s: f32,
+    pub velocity: [f32; 3],
+    pub disp_amplitude: f32,
+    pub disp_offset: [f32; 3],
+    pub disp_frequency: f32,
+    pub disp_octaves: u32,
+    pub _pad2: [u32; 3],
 }
 
 impl From<&Medium> for MediumGpu {
     fn from(m: &Medium) -> Self {
+        let v = m.volume.unwrap_or(Volume {
+            center: glam::Vec3::ZERO,
+            radius_m: 0.0,
+            amplitude: 0.0,
+            frequency: 0.0,
+            octaves: 1,
+            noise_offset: glam::Vec3::ZERO,
+            velocity: glam::Vec3::ZERO,
+            period_s: 1.0,
+        });
         MediumGpu {
             min: m.min.to_array(),
             kind: match m.kind {
@@ -152,6 +171,7 @@ impl From<&Medium> for MediumGpu {
                 MediumKind::Height => 1,
                 MediumKind::Box => 2,
                 MediumKind::Sphere => 3,
+                MediumKind::Volume => 4,
             },
             max: m.max.to_array(),
             absorption: m.absorption,
@@ -165,6 +185,14 @@ impl From<&Medium> for MediumGpu {
             noise_octaves: m.noise.octaves,
             noise_amplitude: m.noise.amplitude,
             _pad: 0,
+            center: v.center.to_array(),
+            period_s: v.period_s,
+            velocity: v.velocity.to_array(),
+            disp_amplitude: v.amplitude,
+            disp_offset: v.noise_offset.to_array(),
+            disp_frequency: v.frequency,
+            disp_octaves: v.octaves,
+            _pad2: [0; 3],
         }
     }
 }
@@ -172,5 +200,5 @@ impl From<&Medium> for MediumGpu {
 const _: () = assert!(std::mem::size_of::<FrameGpu>() == 144);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
-const _: () = assert!(std::mem::size_of::<MediumGpu>() == 96);
+const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);
 const _: () = assert!(std::mem::size_of::<LightMediaGpu>() == 48);

@@ -54,9 +54,11 @@ pub(crate) fn plan(scene: &Scene, spacing_m: f32) -> Vec<LightMediaGpu> {
             };
             if l.kind == LightKind::Directional {
                 // Columns across the bounding sphere, nodes along the light through it.
+                // Counted in u64: media kilometres wide at the default spacing need
+                // more than 2³² nodes before the spacing grows.
                 let fit = |s: f32| (2.0 * radius / s).ceil() as u32 + 1;
                 let mut s = spacing_m;
-                while fit(s).pow(3) > MAX_NODES_PER_LIGHT {
+                while u64::from(fit(s)).pow(3) > u64::from(MAX_NODES_PER_LIGHT) {
                     s *= 1.05;
                 }
                 v.dims = [fit(s); 3];
@@ -89,13 +91,13 @@ pub(crate) fn plan(scene: &Scene, spacing_m: f32) -> Vec<LightMediaGpu> {
         .collect()
 }
 
-/// Whether any medium moves over time (noise carried by wind): then every light's
-/// volume is refilled every frame.
+/// Whether any medium moves over time (noise carried by wind, a moving volume): then
+/// every light's volume is refilled every frame.
 pub(crate) fn media_animated(scene: &Scene) -> bool {
-    scene
-        .media
-        .iter()
-        .any(|m| m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
+    scene.media.iter().any(|m| {
+        (m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
+            || m.volume.is_some_and(|v| v.velocity != Vec3::ZERO)
+    })
 }
 
 /// The fill stage and what it knows of the volumes' freshness.

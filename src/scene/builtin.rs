@@ -4,6 +4,7 @@ const BUILTIN: &[(&str, &str)] = &[
     ("colonnade", include_str!("../../scenes/colonnade.toml")),
     ("street", include_str!("../../scenes/street.toml")),
     ("islands", include_str!("../../scenes/islands.toml")),
+    ("cloud", include_str!("../../scenes/cloud.toml")),
 ];
 
 /// Names of the built-in scenes.

@@ -258,7 +258,13 @@ mod tests {
     #[test]
     fn viewers_turn_smoothly_around_corners() {
         // street's loop turns 180° over two corners 3 m apart; a frame is 1/30 s.
-        for name in ["colonnade", "street", "islands", "scenes/sponza.toml"] {
+        for name in [
+            "colonnade",
+            "street",
+            "islands",
+            "cloud",
+            "scenes/sponza.toml",
+        ] {
             let cam = Scene::load(name).unwrap().camera;
             let mut worst = 0.0f32;
             for frame in 0..(60.0 * 30.0) as usize {

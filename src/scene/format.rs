@@ -202,6 +202,10 @@ pub enum MediumKind {
     Box,
     /// A sphere.
     Sphere,
+    /// A displaced-sphere volume primitive: written as a `[[volume]]` table
+    /// ([`VolumeDesc`]), never as a `[[medium]]` kind.
+    #[serde(skip)]
+    Volume,
 }
 
 /// fbm value-noise modulation of a medium's density.
@@ -258,6 +262,73 @@ pub struct MediumDesc {
     pub noise: Option<Noise>,
 }
 
+/// Radial displacement of a volume's sphere by fbm noise over its directions (paper 004
+/// §5.3: the surface lies at r·(1 + amplitude·(2·fbm(frequency·û + offset) − 1)) along
+/// the unit direction û from the centre).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Displacement {
+    /// Largest displacement as a fraction of the radius, 0..=0.9.
+    #[serde(default = "default_displacement_amplitude")]
+    pub amplitude: f32,
+    /// Noise frequency over the unit sphere of directions (cycles per radius), 0.1..=64.
+    #[serde(default = "default_displacement_frequency")]
+    pub frequency: f32,
+    /// Octaves (1..=6).
+    #[serde(default = "default_octaves")]
+    pub octaves: u32,
+    /// Picks the noise pattern (0..=1000): volumes with different seeds differ in shape.
+    #[serde(default)]
+    pub seed: u32,
+}
+
+fn default_displacement_amplitude() -> f32 {
+    0.3
+}
+fn default_displacement_frequency() -> f32 {
+    2.0
+}
+
+/// Straight-line motion of a volume that wraps: at time t its centre is
+/// `center + velocity · period_s · (fract(t/period_s + 1/2) − 1/2)`, so it passes
+/// `center` at t = 0 and travels the segment `center ± velocity·period_s/2` once per period.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeMotion {
+    /// Velocity, metres per second.
+    pub velocity: [f32; 3],
+    /// Time to travel the whole path before wrapping back, seconds (0.001..=1e6).
+    pub period_s: f32,
+}
+
+/// A displaced-sphere volume primitive (paper 004 §5.3) — a cloud, a fog bank, a dust
+/// cloud — with the optical parameters of a [`MediumDesc`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeDesc {
+    /// Centre at time 0, metres.
+    pub center: [f32; 3],
+    /// Radius before displacement, metres (0.001..=100000).
+    pub radius: f32,
+    /// Scattering coefficient σs per channel at density 1, m⁻¹.
+    pub scattering: [f32; 3],
+    /// Absorption coefficient σa at density 1, m⁻¹ (grey).
+    #[serde(default)]
+    pub absorption: f32,
+    /// Henyey-Greenstein asymmetry g, −1 < g < 1.
+    #[serde(default)]
+    pub g: f32,
+    /// Emitted radiance per metre at density 1.
+    #[serde(default)]
+    pub emission: [f32; 3],
+    /// Displacement of the surface (none: a sphere with a soft edge).
+    pub displacement: Option<Displacement>,
+    /// Motion (none: the volume stays put).
+    pub motion: Option<VolumeMotion>,
+    /// Optional density modulation inside the volume (as a medium's `noise`).
+    pub noise: Option<Noise>,
+}
+
 /// The scene file as written.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -276,6 +347,9 @@ pub struct SceneDesc {
     /// Participating media.
     #[serde(default, rename = "medium")]
     pub media: Vec<MediumDesc>,
+    /// Displaced-sphere volume primitives (become media after the `[[medium]]` ones).
+    #[serde(default, rename = "volume")]
+    pub volumes: Vec<VolumeDesc>,
     /// Moving occluders (spinning boxes).
     #[serde(default, rename = "mover")]
     pub movers: Vec<MoverDesc>,

@@ -112,6 +112,7 @@ pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
         .unwrap_or("gltf")
         .to_string();
     Ok(SceneDesc {
+        volumes: Vec::new(),
         movers: Vec::new(),
         name,
         render: RenderDefaults {

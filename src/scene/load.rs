@@ -3,7 +3,7 @@
 //! loop, read without the meshes.
 
 use super::format::NameAndCamera;
-use super::validate::{validate_lights, validate_media, validate_render};
+use super::validate::{validate_lights, validate_media, validate_render, validate_volumes};
 use super::{
     builtin_scene, gltf_load, media, mesh, CameraPath, Light, LightKind, Mover, Scene, SceneDesc,
     SceneError, MAX_LIGHTS,
@@ -116,6 +116,7 @@ impl Scene {
         let mesh = mesh::build_meshes(&desc.meshes, base_dir)?;
         let lights_world = validate_lights(&desc.lights)?;
         validate_media(&desc.media)?;
+        validate_volumes(&desc.volumes)?;
         desc.camera.validate()?;
 
         // World bounds of geometry and bounded media; the camera path if nothing else.
@@ -133,6 +134,11 @@ impl Scene {
                 grow(a.as_dvec3());
                 grow(b.as_dvec3());
             }
+        }
+        for v in &desc.volumes {
+            let (a, b) = media::volume_extent(v);
+            grow(a.as_dvec3());
+            grow(b.as_dvec3());
         }
         for p in &desc.camera.path {
             grow(Vec3::from(*p).as_dvec3());
@@ -153,6 +159,11 @@ impl Scene {
             .media
             .iter()
             .map(|m| media::to_render_space(m, &to_render, bounds))
+            .chain(
+                desc.volumes
+                    .iter()
+                    .map(|v| media::volume_to_render_space(v, &to_render)),
+            )
             .collect();
         let camera = desc.camera.translated(&to_render);
         let movers = desc

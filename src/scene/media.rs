@@ -2,7 +2,7 @@
 //!
 //! Every formula here is mirrored in WGSL; the truth renderer uses these directly.
 
-use super::{Medium, MediumDesc, MediumKind, Noise};
+use super::{Medium, MediumDesc, MediumKind, Noise, Volume, VolumeDesc};
 use glam::Vec3;
 
 /// Combined optical properties of all media at one point.
@@ -27,9 +27,81 @@ pub(crate) fn bounded_extent(m: &MediumDesc) -> Option<(Vec3, Vec3)> {
             let r = m.radius?;
             Some((c - r, c + r))
         }
-        MediumKind::Constant | MediumKind::Height => None,
+        MediumKind::Constant | MediumKind::Height | MediumKind::Volume => None,
     }
 }
+
+/// Width of a volume's soft edge as a fraction of its radius: the density falls from 1
+/// to 0 over the last `VOLUME_EDGE_FRACTION · r` inside the displaced surface, so that
+/// quadrature along a ray converges (a hard edge would make it first order).
+pub const VOLUME_EDGE_FRACTION: f32 = 0.05;
+
+/// The volume's centre at time 0 and the displacement and motion, in file coordinates.
+fn volume_shape(v: &VolumeDesc) -> Volume {
+    let d = v.displacement.unwrap_or(super::Displacement {
+        amplitude: 0.0,
+        frequency: 1.0,
+        octaves: 1,
+        seed: 0,
+    });
+    let (velocity, period_s) = v
+        .motion
+        .map_or((Vec3::ZERO, 1.0), |m| (Vec3::from(m.velocity), m.period_s));
+    // A seed moves the noise by whole lattice cells, so seeds give unrelated shapes;
+    // below 251 cells on each axis so that f32 keeps the finest octave's detail (the
+    // sixth octave doubles the offset five times: still under 10⁴ cells, ulp 10⁻³).
+    let cells = |k: u32| (d.seed * k % 251) as f32;
+    Volume {
+        center: Vec3::from(v.center),
+        radius_m: v.radius,
+        amplitude: d.amplitude,
+        frequency: d.frequency,
+        octaves: d.octaves,
+        noise_offset: Vec3::new(cells(17), cells(11), cells(23)),
+        velocity,
+        period_s,
+    }
+}
+
+/// Where a volume can have density over its whole motion, file coordinates: the
+/// segment its centre travels, grown by r·(1 + amplitude).
+pub(crate) fn volume_extent(v: &VolumeDesc) -> (Vec3, Vec3) {
+    let shape = volume_shape(v);
+    let half_path = shape.velocity * (shape.period_s * 0.5);
+    let reach = Vec3::splat(shape.outer_radius_m());
+    let (a, b) = (shape.center - half_path, shape.center + half_path);
+    (a.min(b) - reach, a.max(b) + reach)
+}
+
+/// A `[[volume]]` as the medium the renderers use (kind volume), render space.
+pub(crate) fn volume_to_render_space(
+    v: &VolumeDesc,
+    to_render: &impl Fn([f32; 3]) -> Vec3,
+) -> Medium {
+    let (min, max) = volume_extent(v);
+    let mut shape = volume_shape(v);
+    shape.center = to_render(v.center);
+    Medium {
+        kind: MediumKind::Volume,
+        scattering: Vec3::from(v.scattering),
+        absorption: v.absorption,
+        g: v.g,
+        emission: Vec3::from(v.emission),
+        min: to_render(min.to_array()),
+        max: to_render(max.to_array()),
+        radius_or_falloff: v.radius,
+        base_y: 0.0,
+        noise: v.noise.unwrap_or(NO_NOISE),
+        volume: Some(shape),
+    }
+}
+
+const NO_NOISE: Noise = Noise {
+    frequency: 0.0,
+    octaves: 1,
+    amplitude: 0.0,
+    wind: [0.0; 3],
+};
 
 pub(crate) fn to_render_space(
     m: &MediumDesc,
@@ -54,12 +126,8 @@ pub(crate) fn to_render_space(
         max,
         radius_or_falloff: m.radius.or(m.falloff_m).unwrap_or(1.0),
         base_y,
-        noise: m.noise.unwrap_or(Noise {
-            frequency: 0.0,
-            octaves: 1,
-            amplitude: 0.0,
-            wind: [0.0; 3],
-        }),
+        noise: m.noise.unwrap_or(NO_NOISE),
+        volume: None,
     }
 }
 
@@ -127,6 +195,7 @@ pub fn density_at(m: &Medium, p: Vec3, time_s: f32) -> f32 {
             let c = (m.min + m.max) * 0.5;
             f32::from(p.distance_squared(c) <= m.radius_or_falloff * m.radius_or_falloff)
         }
+        MediumKind::Volume => m.volume.map_or(0.0, |v| volume_density(&v, p, time_s)),
     };
     if d > 0.0 && m.noise.frequency > 0.0 {
         let q = (p - m.min - Vec3::from(m.noise.wind) * time_s) * m.noise.frequency;
@@ -134,6 +203,35 @@ pub fn density_at(m: &Medium, p: Vec3, time_s: f32) -> f32 {
         d *= (1.0 + m.noise.amplitude * (2.0 * n - 1.0)).max(0.0);
     }
     d
+}
+
+/// Density of a displaced-sphere volume at `p` (paper 004 §5.3, common.wgsl
+/// `volume_density`). With q = p − centre(t), ρ = |q| and û = q/ρ, the surface lies at
+/// R(û) = r·(1 + a·(2·fbm(f·û + offset) − 1)) and the density is
+/// smoothstep((R(û) − ρ)/w) with w = [`VOLUME_EDGE_FRACTION`]·r: 1 deeper than w inside
+/// the surface, 0 outside it. As in 004, points inside the inner radius r(1 − a) − w are
+/// inside without noise, points beyond the outer radius r(1 + a) outside.
+fn volume_density(v: &Volume, p: Vec3, time_s: f32) -> f32 {
+    let q = p - v.center_at(time_s);
+    let rho_sq = q.length_squared();
+    let outer = v.outer_radius_m();
+    if rho_sq >= outer * outer {
+        return 0.0;
+    }
+    let edge = VOLUME_EDGE_FRACTION * v.radius_m;
+    let inner = v.radius_m * (1.0 - v.amplitude) - edge;
+    if rho_sq <= inner * inner {
+        return 1.0;
+    }
+    let rho = rho_sq.sqrt();
+    let surface = if v.amplitude > 0.0 {
+        let n = fbm(q / rho * v.frequency + v.noise_offset, v.octaves);
+        v.radius_m * (1.0 + v.amplitude * (2.0 * n - 1.0))
+    } else {
+        v.radius_m
+    };
+    let x = ((surface - rho) / edge).clamp(0.0, 1.0);
+    x * x * (3.0 - 2.0 * x)
 }
 
 /// Sum of all media at `p`.

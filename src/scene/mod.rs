@@ -28,13 +28,14 @@ pub use bvh::{intersect_triangle, Bvh, GpuBvhNode, GpuTriangle, Ray, MAX_BVH_DEP
 pub use camera::{Camera, CameraPath};
 pub use error::SceneError;
 pub use format::{
-    LightDesc, MediumDesc, MediumKind, MeshDesc, Noise, RenderDefaults, SceneDesc, SwingDesc,
+    Displacement, LightDesc, MediumDesc, MediumKind, MeshDesc, Noise, RenderDefaults, SceneDesc,
+    SwingDesc, VolumeDesc, VolumeMotion,
 };
 pub use load::load_camera_path;
-pub use media::{density_at, hg_phase, sample_media, MediumSample};
+pub use media::{density_at, hg_phase, sample_media, MediumSample, VOLUME_EDGE_FRACTION};
 pub use mesh::TriangleMesh;
 pub use mover::{movers_mesh_at, Mover, MoverDesc};
-pub use types::{Light, LightKind, Medium, Scene, Swing, MAX_LIGHTS};
+pub use types::{Light, LightKind, Medium, Scene, Swing, Volume, MAX_LIGHTS};
 
 pub(crate) use error::invalid;
 pub(crate) use validate::{check_finite, check_range};

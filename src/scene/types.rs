@@ -98,6 +98,45 @@ pub struct Medium {
     pub base_y: f32,
     /// Noise (frequency 0 = none).
     pub noise: Noise,
+    /// The displaced sphere of a volume primitive (kind = volume), `None` otherwise.
+    pub volume: Option<Volume>,
+}
+
+/// A validated displaced-sphere volume primitive (paper 004 §5.3), render space. Its
+/// density is [`crate::scene::density_at`]; its medium's `min`/`max` bound it over its
+/// whole path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Volume {
+    /// Centre at time 0, render space.
+    pub center: glam::Vec3,
+    /// Radius before displacement, metres.
+    pub radius_m: f32,
+    /// Largest displacement as a fraction of the radius (0 = a sphere with a soft edge).
+    pub amplitude: f32,
+    /// Displacement noise frequency over the unit sphere of directions.
+    pub frequency: f32,
+    /// Displacement noise octaves.
+    pub octaves: u32,
+    /// Offset of the displacement noise (from the seed).
+    pub noise_offset: glam::Vec3,
+    /// Velocity, metres per second.
+    pub velocity: glam::Vec3,
+    /// Period after which the motion wraps, seconds.
+    pub period_s: f32,
+}
+
+impl Volume {
+    /// The centre at scene time `time_s`: `center + velocity·period_s·(fract(t/period_s
+    /// + 1/2) − 1/2)` (common.wgsl `volume_center`).
+    pub fn center_at(&self, time_s: f32) -> glam::Vec3 {
+        let x = time_s / self.period_s + 0.5;
+        self.center + self.velocity * (self.period_s * (x - x.floor() - 0.5))
+    }
+
+    /// Radius of the sphere that holds the displaced surface, r·(1 + amplitude).
+    pub fn outer_radius_m(&self) -> f32 {
+        self.radius_m * (1.0 + self.amplitude)
+    }
 }
 
 /// A loaded, validated scene in render space.

@@ -2,7 +2,8 @@
 //! needs); errors name the field and the offending value.
 
 use super::{
-    invalid, Light, LightDesc, LightKind, MediumDesc, MediumKind, RenderDefaults, SceneError, Swing,
+    invalid, Light, LightDesc, LightKind, MediumDesc, MediumKind, Noise, RenderDefaults,
+    SceneError, Swing, VolumeDesc,
 };
 use glam::Vec3;
 
@@ -199,34 +200,7 @@ pub(super) fn validate_lights(
 pub(super) fn validate_media(media: &[MediumDesc]) -> Result<(), SceneError> {
     for (i, m) in media.iter().enumerate() {
         let f = |name: &str| format!("medium[{i}].{name}");
-        check_finite(&f("scattering"), &m.scattering)?;
-        for c in m.scattering {
-            check_range(
-                &f("scattering"),
-                c,
-                0.0,
-                1e6,
-                "each channel must be between 0 and 1e6 m⁻¹",
-            )?;
-        }
-        check_range(
-            &f("absorption"),
-            m.absorption,
-            0.0,
-            1e6,
-            "must be between 0 and 1e6 m⁻¹",
-        )?;
-        check_range(
-            &f("g"),
-            m.g,
-            -0.9999,
-            0.9999,
-            "Henyey-Greenstein g must be strictly between -1 and 1",
-        )?;
-        check_finite(&f("emission"), &m.emission)?;
-        if m.emission.iter().any(|c| *c < 0.0) {
-            return Err(invalid(f("emission"), m.emission, "must not be negative"));
-        }
+        validate_optics(&f, m.scattering, m.absorption, m.g, m.emission)?;
         match m.kind {
             MediumKind::Constant => {}
             MediumKind::Height => {
@@ -262,6 +236,13 @@ pub(super) fn validate_media(media: &[MediumDesc]) -> Result<(), SceneError> {
                     ));
                 }
             }
+            MediumKind::Volume => {
+                return Err(invalid(
+                    f("kind"),
+                    "volume",
+                    "write a volume as a [[volume]] table",
+                ));
+            }
             MediumKind::Sphere => {
                 let c = m.center.ok_or_else(|| {
                     invalid(
@@ -288,28 +269,139 @@ pub(super) fn validate_media(media: &[MediumDesc]) -> Result<(), SceneError> {
             }
         }
         if let Some(n) = m.noise {
+            validate_noise(&f, &n)?;
+        }
+    }
+    Ok(())
+}
+
+/// σs, σa, g and emission of a medium or volume (`f` names the field).
+fn validate_optics(
+    f: &impl Fn(&str) -> String,
+    scattering: [f32; 3],
+    absorption: f32,
+    g: f32,
+    emission: [f32; 3],
+) -> Result<(), SceneError> {
+    check_finite(&f("scattering"), &scattering)?;
+    for c in scattering {
+        check_range(
+            &f("scattering"),
+            c,
+            0.0,
+            1e6,
+            "each channel must be between 0 and 1e6 m⁻¹",
+        )?;
+    }
+    check_range(
+        &f("absorption"),
+        absorption,
+        0.0,
+        1e6,
+        "must be between 0 and 1e6 m⁻¹",
+    )?;
+    check_range(
+        &f("g"),
+        g,
+        -0.9999,
+        0.9999,
+        "Henyey-Greenstein g must be strictly between -1 and 1",
+    )?;
+    check_finite(&f("emission"), &emission)?;
+    if emission.iter().any(|c| *c < 0.0) {
+        return Err(invalid(f("emission"), emission, "must not be negative"));
+    }
+    Ok(())
+}
+
+/// A density `noise` table of a medium or volume.
+fn validate_noise(f: &impl Fn(&str) -> String, n: &Noise) -> Result<(), SceneError> {
+    check_range(
+        &f("noise.frequency"),
+        n.frequency,
+        0.0,
+        1e3,
+        "must be between 0 and 1000 per metre",
+    )?;
+    if !(1..=6).contains(&n.octaves) {
+        return Err(invalid(
+            f("noise.octaves"),
+            n.octaves,
+            "must be between 1 and 6",
+        ));
+    }
+    check_range(
+        &f("noise.amplitude"),
+        n.amplitude,
+        0.0,
+        1.0,
+        "must be between 0 and 1",
+    )?;
+    check_finite(&f("noise.wind"), &n.wind)
+}
+
+pub(super) fn validate_volumes(volumes: &[VolumeDesc]) -> Result<(), SceneError> {
+    for (i, v) in volumes.iter().enumerate() {
+        let f = |name: &str| format!("volume[{i}].{name}");
+        check_finite(&f("center"), &v.center)?;
+        check_range(
+            &f("radius"),
+            v.radius,
+            1e-3,
+            1e5,
+            "must be between 0.001 and 100000 m",
+        )?;
+        validate_optics(&f, v.scattering, v.absorption, v.g, v.emission)?;
+        if let Some(d) = v.displacement {
             check_range(
-                &f("noise.frequency"),
-                n.frequency,
+                &f("displacement.amplitude"),
+                d.amplitude,
                 0.0,
-                1e3,
-                "must be between 0 and 1000 per metre",
+                0.9,
+                "must be between 0 and 0.9 (a fraction of the radius)",
             )?;
-            if !(1..=6).contains(&n.octaves) {
+            check_range(
+                &f("displacement.frequency"),
+                d.frequency,
+                0.1,
+                64.0,
+                "must be between 0.1 and 64 cycles per radius",
+            )?;
+            if !(1..=6).contains(&d.octaves) {
                 return Err(invalid(
-                    f("noise.octaves"),
-                    n.octaves,
+                    f("displacement.octaves"),
+                    d.octaves,
                     "must be between 1 and 6",
                 ));
             }
+            if d.seed > 1000 {
+                return Err(invalid(
+                    f("displacement.seed"),
+                    d.seed,
+                    "must be between 0 and 1000",
+                ));
+            }
+        }
+        if let Some(m) = v.motion {
+            check_finite(&f("motion.velocity"), &m.velocity)?;
             check_range(
-                &f("noise.amplitude"),
-                n.amplitude,
-                0.0,
-                1.0,
-                "must be between 0 and 1",
+                &f("motion.period_s"),
+                m.period_s,
+                1e-3,
+                1e6,
+                "must be between 0.001 and 1e6 seconds",
             )?;
-            check_finite(&f("noise.wind"), &n.wind)?;
+            let path_m = Vec3::from(m.velocity).length() * m.period_s;
+            if !path_m.is_finite() || path_m > 1e5 {
+                return Err(invalid(
+                    f("motion.velocity"),
+                    m.velocity,
+                    "times period_s must be a path of at most 100000 m",
+                ));
+            }
+        }
+        if let Some(n) = v.noise {
+            validate_noise(&f, &n)?;
         }
     }
     Ok(())
