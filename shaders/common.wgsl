@@ -91,9 +91,16 @@ struct Light {
     cos_inner: f32,
 }
 
+// Medium.kind (the match on MediumKind in src/render/gpu_types.rs)
+const MEDIUM_CONSTANT: u32 = 0u;
+const MEDIUM_HEIGHT: u32 = 1u;
+const MEDIUM_BOX: u32 = 2u;
+const MEDIUM_SPHERE: u32 = 3u;
+const MEDIUM_VOLUME: u32 = 4u;
+
 struct Medium {
     min: vec3f,
-    kind: u32,        // 0 constant, 1 height, 2 box, 3 sphere, 4 volume
+    kind: u32,        // MEDIUM_CONSTANT, _HEIGHT, _BOX, _SPHERE or _VOLUME
     max: vec3f,
     absorption: f32,
     scattering: vec3f,
@@ -360,9 +367,9 @@ fn medium_density(m: Medium, p: vec3f) -> f32 {
     let inside_box = all(p >= m.min) && all(p <= m.max);
     var d = 0.0;
     switch m.kind {
-        case 0u, 2u: { d = select(0.0, 1.0, inside_box); }
-        case 1u: { d = select(0.0, exp(-max(p.y - m.base_y, 0.0) / m.radius_or_falloff), inside_box); }
-        case 4u: { d = volume_density(m, p); }
+        case MEDIUM_CONSTANT, MEDIUM_BOX: { d = select(0.0, 1.0, inside_box); }
+        case MEDIUM_HEIGHT: { d = select(0.0, exp(-max(p.y - m.base_y, 0.0) / m.radius_or_falloff), inside_box); }
+        case MEDIUM_VOLUME: { d = volume_density(m, p); }
         default: {
             let c = (m.min + m.max) * 0.5;
             let q = p - c;
@@ -421,11 +428,11 @@ fn medium_span(m: Medium, p: vec3f, dir: vec3f, dist: f32) -> vec2f {
     let hi = max(a, b);
     var t0 = max(max(lo.x, lo.y), max(lo.z, 0.0));
     var t1 = min(min(hi.x, hi.y), min(hi.z, dist));
-    if m.kind == 3u || m.kind == 4u {
+    if m.kind == MEDIUM_SPHERE || m.kind == MEDIUM_VOLUME {
         // A volume: the sphere of its outer radius where it is now.
         var centre = (m.min + m.max) * 0.5;
         var radius = m.radius_or_falloff;
-        if m.kind == 4u {
+        if m.kind == MEDIUM_VOLUME {
             centre = volume_center(m);
             radius *= 1.0 + m.disp_amplitude;
         }
@@ -461,7 +468,7 @@ fn media_optical_depth(p: vec3f, dir: vec3f, dist: f32) -> f32 {
         if len <= 0.0 {
             continue;
         }
-        if m.kind != 1u && m.kind != 4u && m.noise_frequency <= 0.0 {
+        if m.kind != MEDIUM_HEIGHT && m.kind != MEDIUM_VOLUME && m.noise_frequency <= 0.0 {
             tau += sigma * len;
             continue;
         }

@@ -48,12 +48,12 @@ fn may_have_media(p: vec3f) -> bool {
             continue;
         }
         let inside_box = all(p >= m.min) && all(p <= m.max);
-        if m.kind == 3u {
+        if m.kind == MEDIUM_SPHERE {
             let q = p - (m.min + m.max) * 0.5;
             if dot(q, q) <= m.radius_or_falloff * m.radius_or_falloff {
                 return true;
             }
-        } else if m.kind == 4u {
+        } else if m.kind == MEDIUM_VOLUME {
             // A volume: the sphere of its outer radius where it is now.
             let q = p - volume_center(m);
             let outer = m.radius_or_falloff * (1.0 + m.disp_amplitude);

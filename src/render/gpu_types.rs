@@ -166,6 +166,7 @@ impl From<&Medium> for MediumGpu {
         });
         MediumGpu {
             min: m.min.to_array(),
+            // MEDIUM_* in shaders/common.wgsl.
             kind: match m.kind {
                 MediumKind::Constant => 0,
                 MediumKind::Height => 1,
