@@ -4,9 +4,12 @@
 //! the shadow rays' transmittance against a brute-force sum of the density, and the
 //! pixel box filter. Images are 1×1 to 12×6 pixels of linear radiance.
 
+mod gpu_support;
+
 use fogcast::scene::{density_at, Bvh, Camera, LightKind, Medium, MediumKind, Noise, Scene};
 use fogcast::truth::{render_truth_radiance, ShadowMedia, TruthSettings};
 use glam::{DVec3, Vec3};
+use gpu_support::unit_points;
 use std::f64::consts::PI;
 use std::path::Path;
 
@@ -335,18 +338,6 @@ fn medium(kind: MediumKind, min: Vec3, max: Vec3, radius_or_falloff: f32, noise:
         noise,
         volume: None,
     }
-}
-
-/// Deterministic points in [0, 1)³ (a 64-bit LCG).
-fn unit_points(n: usize) -> Vec<Vec3> {
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    let mut next = move || {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (state >> 40) as f32 / (1u64 << 24) as f32
-    };
-    (0..n).map(|_| Vec3::new(next(), next(), next())).collect()
 }
 
 /// Origin, unit direction and length of a shadow ray.

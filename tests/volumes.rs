@@ -11,7 +11,7 @@ use fogcast::render::{Mode, Renderer, Settings};
 use fogcast::scene::{density_at, Bvh, Camera, Medium, Scene};
 use fogcast::truth::{render_truth, ShadowMedia, TruthSettings};
 use glam::{DVec3, Vec3};
-use gpu_support::gpu;
+use gpu_support::{gpu, unit_points};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -69,18 +69,6 @@ fn volumes() -> Vec<(&'static str, Medium)> {
             ),
         ),
     ]
-}
-
-/// Deterministic points in [0, 1)³ (a 64-bit LCG).
-fn unit_points(n: usize) -> Vec<Vec3> {
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    let mut next = move || {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (state >> 40) as f32 / (1u64 << 24) as f32
-    };
-    (0..n).map(|_| Vec3::new(next(), next(), next())).collect()
 }
 
 /// Rays from points spread around the volume's centre (at `time_s`), some starting
