@@ -55,6 +55,24 @@ fn storage_sizes(
     ]
 }
 
+/// [`storage_sizes`] of a set of `count` views of `width`×`height` under `settings`, each
+/// view its own frame (what the server's budget plans with).
+fn planned_sizes(
+    settings: &super::Settings,
+    count: usize,
+    width: u32,
+    height: u32,
+) -> [(&'static str, u64); 7] {
+    storage_sizes(
+        count,
+        &ViewerLayout::new(settings, width, height),
+        settings.slices,
+        settings.frustum_slices(),
+        settings.temporal,
+        count as u64 * width as u64 * height as u64,
+    )
+}
+
 /// The largest storage buffer that [`ViewerVolumes`] for `count` views of
 /// `width`×`height` under `settings` would bind, as (label, bytes) — rounded up to 16
 /// bytes, as `GpuContext::storage` checks it against the adapter's binding limit — so
@@ -65,19 +83,12 @@ pub fn largest_binding(
     width: u32,
     height: u32,
 ) -> (&'static str, u64) {
-    storage_sizes(
-        count,
-        &ViewerLayout::new(settings, width, height),
-        settings.slices,
-        settings.frustum_slices(),
-        settings.temporal,
-        count as u64 * width as u64 * height as u64,
-    )
-    .into_iter()
-    .map(|(label, size)| (label, size.max(16).next_multiple_of(16)))
-    // The first of equal sizes, as allocation fails on it first.
-    .reduce(|a, b| if b.1 > a.1 { b } else { a })
-    .expect("seven sizes")
+    planned_sizes(settings, count, width, height)
+        .into_iter()
+        .map(|(label, size)| (label, size.max(16).next_multiple_of(16)))
+        // The first of equal sizes, as allocation fails on it first.
+        .reduce(|a, b| if b.1 > a.1 { b } else { a })
+        .expect("seven sizes")
 }
 
 /// G-buffer bytes per pixel: position rgba32f, normal rgba16f, albedo rgba8, depth 32f.
@@ -92,17 +103,10 @@ pub fn viewer_memory_bytes(
     width: u32,
     height: u32,
 ) -> u64 {
-    let buffers: u64 = storage_sizes(
-        count,
-        &ViewerLayout::new(settings, width, height),
-        settings.slices,
-        settings.frustum_slices(),
-        settings.temporal,
-        count as u64 * width as u64 * height as u64,
-    )
-    .iter()
-    .map(|(_, bytes)| bytes.max(&16).next_multiple_of(16))
-    .sum();
+    let buffers: u64 = planned_sizes(settings, count, width, height)
+        .iter()
+        .map(|(_, bytes)| bytes.max(&16).next_multiple_of(16))
+        .sum();
     buffers + count as u64 * width as u64 * height as u64 * GBUFFER_BYTES_PER_PIXEL
 }
 
