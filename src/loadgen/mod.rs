@@ -239,6 +239,7 @@ impl LoadgenConfig {
             quality: Some(self.quality),
             eye_distance_m: None,
             token: self.token.clone(),
+            ..Hello::default()
         }
     }
 }

@@ -38,6 +38,36 @@ impl Layout {
     }
 }
 
+/// How a session's frames are compressed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Codec {
+    /// Every frame a baseline JPEG (the default).
+    #[default]
+    Jpeg,
+    /// An H.264 stream (constrained baseline, Annex B): SPS/PPS and an IDR on key frames,
+    /// P frames between them. Width and height must be even.
+    H264,
+}
+
+impl Codec {
+    /// Code of the codec in the frame header.
+    pub fn code(self) -> u8 {
+        match self {
+            Codec::Jpeg => 0,
+            Codec::H264 => 1,
+        }
+    }
+
+    /// The codec's name as sent in JSON.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Codec::Jpeg => "jpeg",
+            Codec::H264 => "h264",
+        }
+    }
+}
+
 /// `{"type":"hello", ...}`: the first message of a session.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -60,6 +90,17 @@ pub struct Hello {
     /// Stereo eye distance in metres (0–1, default 0.064).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub eye_distance_m: Option<f64>,
+    /// Frame codec (default `jpeg`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub codec: Option<Codec>,
+    /// Highest bitrate the client wants, kbit/s (default and ceiling: the server's
+    /// `max_kbps`). The server adapts below it to what the client's link delivers.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_kbps: Option<u32>,
+    /// Debugging (servers with `debug_raw_frames` only): every `raw_every`-th frame is
+    /// also sent uncompressed, just before its encoded frame, to measure codec quality.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub raw_every: Option<u32>,
     /// Access token, when the server has one configured.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub token: Option<String>,
@@ -87,6 +128,23 @@ pub struct Configure {
     /// New eye distance (`stereo`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub eye_distance_m: Option<f64>,
+    /// New codec (a key frame follows).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub codec: Option<Codec>,
+    /// New bitrate ceiling, kbit/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_kbps: Option<u32>,
+}
+
+/// `{"type":"ack", "frame": N}`: the client has received (and shown) every frame up to
+/// server frame number `frame`. Optional; a client that acks gets flow control — the
+/// server keeps only a short queue in flight to it and adapts its bitrate to what
+/// arrives — instead of whatever the TCP buffers hold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ack {
+    /// The header's `frame` of the newest frame received.
+    pub frame: u32,
 }
 
 /// One camera: position, orientation and vertical field of view.
@@ -120,8 +178,13 @@ pub enum ClientMessage {
     Hello(Hello),
     /// New camera pose(s).
     Pose(PoseUpdate),
-    /// Changes resolution, layout or quality.
+    /// Changes resolution, layout, quality or codec.
     Configure(Configure),
+    /// Frames received (flow control).
+    Ack(Ack),
+    /// `{"type":"keyframe"}`: the client lost the stream (a decode error); the next
+    /// H.264 frame is a key frame.
+    Keyframe,
 }
 
 impl ClientMessage {
@@ -173,10 +236,20 @@ pub struct Welcome {
     pub view_width: u32,
     /// Height of one view.
     pub view_height: u32,
-    /// JPEG quality.
+    /// JPEG quality asked for (the ceiling: under congestion the server encodes lower and
+    /// each frame's header says what it used).
     pub quality: u8,
     /// Stereo eye distance, metres.
     pub eye_distance_m: f64,
+    /// Frame codec.
+    #[serde(default)]
+    pub codec: Codec,
+    /// Bitrate ceiling in force, kbit/s (the client's `max_kbps` or the server's).
+    #[serde(default)]
+    pub max_kbps: u32,
+    /// Why this welcome was sent.
+    #[serde(default)]
+    pub reason: WelcomeReason,
     /// The server's frame rate cap.
     pub fps: f64,
     /// Bytes of the binary frame header.
@@ -186,6 +259,21 @@ pub struct Welcome {
     pub poses: Vec<ViewPose>,
     /// Limits.
     pub limits: Limits,
+}
+
+/// Why a welcome was sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WelcomeReason {
+    /// The answer to the hello.
+    #[default]
+    Hello,
+    /// The answer to a configure.
+    Configure,
+    /// The server changed the frame size itself: the client's link did not carry the
+    /// requested size at the lowest bitrate for several seconds (smaller), or carries it
+    /// again (back to the requested size).
+    Bandwidth,
 }
 
 /// What went wrong, as a stable machine-readable code.
@@ -230,6 +318,8 @@ pub enum ErrorCode {
     /// The views asked for would exceed what the GPU can bind or the server's
     /// per-frame pixel budget; the message names the limit and the largest size that fits.
     OverBudget,
+    /// The session sent no pose within the server's idle timeout.
+    Idle,
 }
 
 impl ErrorCode {
@@ -254,6 +344,7 @@ impl ErrorCode {
             ErrorCode::RenderFailed => "render_failed",
             ErrorCode::NoFrames => "no_frames",
             ErrorCode::OverBudget => "over_budget",
+            ErrorCode::Idle => "idle",
         }
     }
 
@@ -268,7 +359,7 @@ impl ErrorCode {
             ErrorCode::OverBudget => 4413,
             ErrorCode::TooManyErrors => 1008,
             ErrorCode::Unauthorized => 4401,
-            ErrorCode::HelloTimeout => 4408,
+            ErrorCode::HelloTimeout | ErrorCode::Idle => 4408,
             ErrorCode::RateLimited => 4429,
             ErrorCode::BadJson
             | ErrorCode::InvalidMessage

@@ -1,6 +1,6 @@
 //! The viewer protocol's wire types (`docs/protocol.md`): JSON text messages both ways
-//! ([`messages`]) and binary frames from the server, a fixed 32-byte header followed by
-//! one JPEG ([`frame`]).
+//! ([`messages`]) and binary frames from the server, a fixed 40-byte header followed by
+//! one JPEG or one H.264 access unit ([`frame`]).
 //!
 //! This module is what a client needs to speak to `fogcast serve` and nothing more: it
 //! depends on neither the scene nor the server. The server parses and validates what
@@ -10,18 +10,19 @@
 mod frame;
 mod messages;
 
-pub use frame::FrameHeader;
+pub use frame::{FrameCodec, FrameHeader};
 pub use messages::{
-    clip, ClientMessage, Configure, ErrorCode, ErrorMessage, Hello, Layout, Limits, PoseUpdate,
-    ServerMessage, ViewPose, Welcome,
+    clip, Ack, ClientMessage, Codec, Configure, ErrorCode, ErrorMessage, Hello, Layout, Limits,
+    PoseUpdate, ServerMessage, ViewPose, Welcome, WelcomeReason,
 };
 
 /// Version a client names in its hello.
 pub const PROTOCOL_VERSION: u32 = 1;
 /// First four bytes of every binary frame.
 pub const FRAME_MAGIC: [u8; 4] = *b"FCF1";
-/// Bytes of the binary frame header; the JPEG starts right after it.
-pub const FRAME_HEADER_BYTES: usize = 32;
+/// Bytes of the binary frame header; the payload starts right after it. (32 before the
+/// codec fields were added; clients skip `header_len` bytes, so both parse.)
+pub const FRAME_HEADER_BYTES: usize = 40;
 /// Largest |coordinate| of a viewer position, metres.
 pub const MAX_COORD_M: f64 = 1.0e5;
 /// Vertical field of view range, degrees.
