@@ -234,6 +234,10 @@ mod tests {
                 render_us: 2000,
                 encode_us: 500,
                 dropped,
+                codec: crate::protocol::FrameCodec::Jpeg,
+                key: true,
+                quality: 75,
+                target_kbps: 0,
             },
         }
     }

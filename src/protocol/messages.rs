@@ -213,6 +213,9 @@ pub struct Limits {
     pub max_coord_m: f64,
     /// Field of view range, degrees.
     pub fov_y_deg: [f64; 2],
+    /// A session without a pose for this long is closed (`idle`); 0: never.
+    #[serde(default)]
+    pub idle_timeout_s: f64,
 }
 
 /// `{"type":"welcome", ...}`: the session's settings, sent after hello and after each configure.

@@ -63,6 +63,10 @@ fn encode(job: &EncodeJob) -> anyhow::Result<Bytes> {
         render_us: job.render_us,
         encode_us: 0,
         dropped: job.session.dropped.load(Relaxed).min(u32::MAX as u64) as u32,
+        codec: crate::protocol::FrameCodec::Jpeg,
+        key: true,
+        quality: s.quality,
+        target_kbps: 0,
     };
     // A 4:2:0 JPEG of a rendered frame is rarely above 1/4 of the raw bytes.
     let mut out = Vec::with_capacity(FRAME_HEADER_BYTES + rgba.len() / 4);

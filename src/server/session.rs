@@ -376,6 +376,9 @@ fn welcome(hub: &Hub, session: &SessionShared) -> String {
         view_height: v.spec.view_height,
         quality: v.spec.quality,
         eye_distance_m: v.spec.eye_distance_m,
+        codec: crate::protocol::Codec::Jpeg,
+        max_kbps: 0,
+        reason: crate::protocol::WelcomeReason::Hello,
         fps: c.fps,
         header_bytes: FRAME_HEADER_BYTES,
         poses: v
@@ -393,6 +396,7 @@ fn welcome(hub: &Hub, session: &SessionShared) -> String {
             max_views: c.max_views,
             max_coord_m: MAX_COORD_M,
             fov_y_deg: [FOV_RANGE_DEG.0, FOV_RANGE_DEG.1],
+            idle_timeout_s: 0.0,
         },
     })
     .to_json()
@@ -625,6 +629,7 @@ fn handle_text(
             tracing::info!(session = session.id, layout = layout_name(new.layout), width = new.width, height = new.height, quality = new.quality, "session reconfigured");
             Ok(Some(Control::Welcome(welcome(hub, session), new)))
         }
+        ClientMessage::Ack(_) | ClientMessage::Keyframe => Ok(None),
         ClientMessage::Hello(h) => Err(ProtocolError::new(
             ErrorCode::InvalidMessage,
             format!("hello (version {}) after the session started: send {{\"type\":\"configure\", ...}} to change it", clip(&h.version.to_string())),
