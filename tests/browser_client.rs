@@ -1,8 +1,12 @@
 //! The browser client in real headless Chromium (Debian's `chromium`, installed by
 //! `make deps`): it connects, shows frames, flies the camera on synthetic key presses,
-//! and reconnects after the server goes away and comes back.
+//! and reconnects after the server goes away and comes back; it picks H.264 and decodes
+//! it with WebCodecs, falls back to JPEG without WebCodecs, and recovers from a decode
+//! error with a key frame request.
 //!
-//! Chromium is driven over the DevTools protocol on a loopback WebSocket.
+//! Chromium is driven over the DevTools protocol on a loopback WebSocket. One browser
+//! at a time: each test measures frame rates and latencies that a second Chromium
+//! decoding next to it would skew.
 
 mod server_support;
 
@@ -10,16 +14,24 @@ use futures_util::{SinkExt as _, StreamExt as _};
 use serde_json::{json, Value};
 use server_support::*;
 use std::io::BufRead as _;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
-use std::time::Duration;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+use tokio::sync::{Mutex, MutexGuard};
 use tokio_tungstenite::tungstenite::Message;
+
+static ONE_BROWSER: Mutex<()> = Mutex::const_new(());
 
 /// The Chromium process and its profile folder, both removed on drop.
 struct Browser {
     child: Child,
     profile: PathBuf,
 }
+
+/// Profiles of the browsers this process starts (one folder each).
+static PROFILES: AtomicU32 = AtomicU32::new(0);
 
 impl Drop for Browser {
     fn drop(&mut self) {
@@ -43,7 +55,11 @@ fn chromium_path() -> PathBuf {
 
 /// Starts headless Chromium with a fresh profile; returns it and its DevTools URL.
 fn launch() -> (Browser, String) {
-    let profile = std::env::temp_dir().join(format!("fogcast-chromium-{}", std::process::id()));
+    let profile = std::env::temp_dir().join(format!(
+        "fogcast-chromium-{}-{}",
+        std::process::id(),
+        PROFILES.fetch_add(1, Ordering::Relaxed)
+    ));
     let _ = std::fs::remove_dir_all(&profile);
     let mut child = Command::new(chromium_path())
         .args([
@@ -158,20 +174,18 @@ impl Cdp {
     }
 }
 
-fn grid_diff(a: &Value, b: &Value) -> f64 {
-    let (a, b) = (a["grid"].as_array().unwrap(), b["grid"].as_array().unwrap());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x.as_f64().unwrap() - y.as_f64().unwrap()).abs())
-        .sum::<f64>()
-        / a.len() as f64
+/// A page of the browser client, open in its own Chromium.
+struct Page {
+    cdp: Cdp,
+    _browser: Browser,
+    _turn: MutexGuard<'static, ()>,
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn chromium_shows_frames_and_flies_the_camera() {
-    let server = start(test_config()).await;
-    let addr = server.local_addr();
-    let (_browser, devtools) = launch();
+/// Opens `http://{addr}/{query}` in a fresh Chromium; `before_scripts` runs in the page
+/// before any of the page's own scripts.
+async fn open_page(addr: SocketAddr, query: &str, before_scripts: Option<&str>) -> Page {
+    let turn = ONE_BROWSER.lock().await;
+    let (browser, devtools) = launch();
     let (ws, _) = tokio_tungstenite::connect_async(&devtools)
         .await
         .expect("DevTools connects");
@@ -191,11 +205,78 @@ async fn chromium_shows_frames_and_flies_the_camera() {
         .await;
     cdp.session = Some(attached["sessionId"].as_str().unwrap().to_string());
     cdp.call("Page.enable", json!({})).await;
+    if let Some(source) = before_scripts {
+        cdp.call(
+            "Page.addScriptToEvaluateOnNewDocument",
+            json!({ "source": source }),
+        )
+        .await;
+    }
     cdp.call(
         "Page.navigate",
-        json!({"url": format!("http://{addr}/?w=160&h=90&quality=90")}),
+        json!({"url": format!("http://{addr}/{query}")}),
     )
     .await;
+    Page {
+        cdp,
+        _browser: browser,
+        _turn: turn,
+    }
+}
+
+/// Holds W (forward) and Left (turn) for a second, then waits for two frames rendered
+/// with the final pose. Returns the canvas before and after, and the stats after.
+async fn fly(cdp: &mut Cdp) -> (Value, Value, Value) {
+    let before = cdp.eval("window.fogcast.canvasStats()").await;
+    let cam_before = cdp.stats().await["camera"].clone();
+    cdp.eval("document.getElementById('view').focus()").await;
+    cdp.key("rawKeyDown", "w", "KeyW", 87).await;
+    cdp.key("rawKeyDown", "ArrowLeft", "ArrowLeft", 37).await;
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    cdp.key("keyUp", "w", "KeyW", 87).await;
+    cdp.key("keyUp", "ArrowLeft", "ArrowLeft", 37).await;
+    let moved = cdp.stats().await;
+    assert_ne!(moved["camera"], cam_before, "key presses moved the camera");
+    let seq = moved["seq"].as_u64().unwrap();
+    let shown = moved["shown"].as_u64().unwrap();
+    let after_stats = cdp
+        .wait_stats("a frame of the new pose", |s| {
+            s["frameSeq"].as_u64() >= Some(seq) && s["shown"].as_u64() >= Some(shown + 2)
+        })
+        .await;
+    let after = cdp.eval("window.fogcast.canvasStats()").await;
+    (before, after, after_stats)
+}
+
+/// The canvas shows something (not a black or blank frame).
+fn assert_not_black(canvas: &Value, when: &str) {
+    assert!(
+        canvas["mean"].as_f64().unwrap() > 10.0,
+        "the image {when} is black: {canvas}"
+    );
+}
+
+fn u64_of(s: &Value, key: &str) -> u64 {
+    s[key]
+        .as_u64()
+        .unwrap_or_else(|| panic!("stats.{key} is a count: {s}"))
+}
+
+fn grid_diff(a: &Value, b: &Value) -> f64 {
+    let (a, b) = (a["grid"].as_array().unwrap(), b["grid"].as_array().unwrap());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x.as_f64().unwrap() - y.as_f64().unwrap()).abs())
+        .sum::<f64>()
+        / a.len() as f64
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn chromium_shows_frames_and_flies_the_camera() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    let mut page = open_page(addr, "?w=160&h=90&quality=90&codec=jpeg", None).await;
+    let cdp = &mut page.cdp;
 
     let s = cdp
         .wait_stats("3 frames shown", |s| s["shown"].as_u64() >= Some(3))
@@ -206,43 +287,31 @@ async fn chromium_shows_frames_and_flies_the_camera() {
         "{s}"
     );
     assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
-    let before = cdp.eval("window.fogcast.canvasStats()").await;
-    let cam_before = s["camera"].clone();
-    assert!(
-        before["mean"].as_f64().unwrap() > 10.0,
-        "the first frames are black: {before}"
+    assert_eq!(
+        (s["codec"].as_str(), s["frameCodec"].as_str()),
+        (Some("jpeg"), Some("jpeg")),
+        "{s}"
+    );
+    assert_eq!(
+        s["quality"].as_u64(),
+        Some(90),
+        "asked quality on an idle link: {s}"
+    );
+    assert_not_black(
+        &cdp.eval("window.fogcast.canvasStats()").await,
+        "first shown",
     );
 
-    // Fly: hold W (forward) and Left (turn) for a second.
-    cdp.eval("document.getElementById('view').focus()").await;
-    cdp.key("rawKeyDown", "w", "KeyW", 87).await;
-    cdp.key("rawKeyDown", "ArrowLeft", "ArrowLeft", 37).await;
-    tokio::time::sleep(Duration::from_millis(1000)).await;
-    cdp.key("keyUp", "w", "KeyW", 87).await;
-    cdp.key("keyUp", "ArrowLeft", "ArrowLeft", 37).await;
-    let moved = cdp.stats().await;
-    assert_ne!(moved["camera"], cam_before, "key presses moved the camera");
-    // Wait for a frame rendered with the final pose.
-    let seq = moved["seq"].as_u64().unwrap();
-    let shown = moved["shown"].as_u64().unwrap();
-    let after_stats = cdp
-        .wait_stats("a frame of the new pose", |s| {
-            s["frameSeq"].as_u64() >= Some(seq) && s["shown"].as_u64() >= Some(shown + 2)
-        })
-        .await;
-    let after = cdp.eval("window.fogcast.canvasStats()").await;
+    let (before, after, after_stats) = fly(cdp).await;
     let diff = grid_diff(&before, &after);
     eprintln!(
-        "browser: mean luma {:.1} -> {:.1}, 8x8 grid diff {diff:.2}, latency {:?} ms, fps {}",
+        "browser (jpeg): mean luma {:.1} -> {:.1}, 8x8 grid diff {diff:.2}, latency {:?} ms, fps {}",
         before["mean"].as_f64().unwrap(),
         after["mean"].as_f64().unwrap(),
         after_stats["latencyMs"],
         after_stats["fps"]
     );
-    assert!(
-        after["mean"].as_f64().unwrap() > 10.0,
-        "the image after moving is black: {after}"
-    );
+    assert_not_black(&after, "after moving");
     assert!(
         diff > 2.0,
         "the displayed image did not change after moving (grid diff {diff:.2})"
@@ -250,6 +319,10 @@ async fn chromium_shows_frames_and_flies_the_camera() {
     assert!(
         after_stats["latencyMs"].as_f64().is_some(),
         "pose-to-frame latency is measured"
+    );
+    assert!(
+        u64_of(&after_stats, "acks") >= u64_of(&after_stats, "shown") / 2,
+        "the client acks the frames it shows: {after_stats}"
     );
 
     let shot = cdp
@@ -277,6 +350,169 @@ async fn chromium_shows_frames_and_flies_the_camera() {
         s["connected"] == true && s["shown"].as_u64() >= Some(shown + 2)
     })
     .await;
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn chromium_decodes_h264_with_webcodecs() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    // No codec parameter: the page picks H.264 because this Chromium decodes it.
+    let mut page = open_page(addr, "?w=160&h=90", None).await;
+    let cdp = &mut page.cdp;
+
+    let s = cdp
+        .wait_stats("5 H.264 frames decoded", |s| {
+            s["framesDecoded"].as_u64() >= Some(5)
+        })
+        .await;
+    assert_eq!(s["askedCodec"].as_str(), Some("h264"), "{s}");
+    assert_eq!(
+        s["codec"].as_str(),
+        Some("h264"),
+        "the welcome's codec: {s}"
+    );
+    assert_eq!(s["frameCodec"].as_str(), Some("h264"), "{s}");
+    assert!(
+        u64_of(&s, "keyFrames") >= 1,
+        "the stream starts with a key frame: {s}"
+    );
+    assert_eq!(u64_of(&s, "decodeErrors"), 0, "{s}");
+    assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
+    assert_eq!(
+        (s["width"].as_u64(), s["height"].as_u64()),
+        (Some(160), Some(90)),
+        "the canvas has the frame size: {s}"
+    );
+    assert_not_black(
+        &cdp.eval("window.fogcast.canvasStats()").await,
+        "first decoded",
+    );
+
+    let (before, after, after_stats) = fly(cdp).await;
+    let diff = grid_diff(&before, &after);
+    eprintln!(
+        "browser (h264): mean luma {:.1} -> {:.1}, 8x8 grid diff {diff:.2}, latency {:?} ms, fps {}, {} kbit/s (target {}), {} acks",
+        before["mean"].as_f64().unwrap(),
+        after["mean"].as_f64().unwrap(),
+        after_stats["latencyMs"],
+        after_stats["fps"],
+        after_stats["kbps"],
+        after_stats["targetKbps"],
+        after_stats["acks"],
+    );
+    assert_not_black(&after, "after moving");
+    assert!(
+        diff > 2.0,
+        "the displayed H.264 image did not change after moving (grid diff {diff:.2})"
+    );
+    assert_eq!(u64_of(&after_stats, "decodeErrors"), 0, "{after_stats}");
+    assert_eq!(
+        after_stats["errors"].as_array().map(Vec::len),
+        Some(0),
+        "{after_stats}"
+    );
+    let fps = u64_of(&after_stats, "fps");
+    assert!(
+        (5..=25).contains(&fps),
+        "about the server's 20 fps shown: {after_stats}"
+    );
+    let kbps = after_stats["kbps"].as_f64().unwrap();
+    assert!(
+        (10.0..=20_000.0).contains(&kbps),
+        "received bitrate: {after_stats}"
+    );
+    let target = u64_of(&after_stats, "targetKbps");
+    assert!(
+        (150..=8000).contains(&target),
+        "the header's target bitrate: {after_stats}"
+    );
+    // Acks: one per frame shown, and the server, which keeps at most ~150 ms in flight
+    // for a client that acks, kept streaming.
+    let (shown, acks) = (u64_of(&after_stats, "shown"), u64_of(&after_stats, "acks"));
+    assert!(
+        acks >= shown / 2 && acks <= shown + 1,
+        "about one ack per frame shown: {after_stats}"
+    );
+    let m = metrics(addr).await;
+    assert!(
+        metric(&m, "fogcast_frames_sent_total", "") >= shown as f64,
+        "{m}"
+    );
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn chromium_without_webcodecs_falls_back_to_jpeg() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    let mut page = open_page(addr, "?w=160&h=90", Some("delete window.VideoDecoder;")).await;
+    let cdp = &mut page.cdp;
+
+    let s = cdp
+        .wait_stats("3 frames shown", |s| s["shown"].as_u64() >= Some(3))
+        .await;
+    assert_eq!(
+        cdp.eval("typeof window.VideoDecoder").await,
+        "undefined",
+        "the page ran without WebCodecs"
+    );
+    assert_eq!(s["askedCodec"].as_str(), Some("jpeg"), "{s}");
+    assert_eq!(
+        (s["codec"].as_str(), s["frameCodec"].as_str()),
+        (Some("jpeg"), Some("jpeg")),
+        "{s}"
+    );
+    assert_eq!(u64_of(&s, "decodeErrors"), 0, "{s}");
+    assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
+    assert_not_black(&cdp.eval("window.fogcast.canvasStats()").await, "shown");
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn h264_decode_error_recovers_with_a_keyframe_request() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    let mut page = open_page(addr, "?w=160&h=90&codec=h264", None).await;
+    let cdp = &mut page.cdp;
+    // Past the stream's first key frame, so the next one can only be the requested one.
+    let s = cdp
+        .wait_stats("10 H.264 frames decoded", |s| {
+            s["framesDecoded"].as_u64() >= Some(10) && s["codec"] == "h264"
+        })
+        .await;
+    let keys = u64_of(&s, "keyFrames");
+
+    cdp.eval("window.fogcast.corruptNextFrame()").await;
+    let t0 = Instant::now();
+    let broken = cdp
+        .wait_stats("a decode error", |s| s["decodeErrors"].as_u64() >= Some(1))
+        .await;
+    assert_eq!(
+        u64_of(&broken, "keyframeRequests"),
+        1,
+        "one key frame request: {broken}"
+    );
+    let decoded = u64_of(&broken, "framesDecoded");
+    let s = cdp
+        .wait_stats("decoding again after a new key frame", |s| {
+            s["framesDecoded"].as_u64() >= Some(decoded + 5)
+        })
+        .await;
+    let recovered_s = t0.elapsed().as_secs_f64();
+    eprintln!("browser (h264): decode error -> 5 frames decoded again in {recovered_s:.2} s: {s}");
+    assert!(
+        u64_of(&s, "keyFrames") > keys,
+        "a key frame followed the request: {s}"
+    );
+    assert_eq!(u64_of(&s, "decodeErrors"), 1, "{s}");
+    assert!(u64_of(&s, "keyframeRequests") <= 2, "{s}");
+    assert!(recovered_s < 5.0, "recovery took {recovered_s:.2} s");
+    assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
+    assert_not_black(
+        &cdp.eval("window.fogcast.canvasStats()").await,
+        "after recovery",
+    );
     server.shutdown().await.unwrap();
 }
 

@@ -1,12 +1,20 @@
 // fogcast browser client: opens /ws, shows the newest frame, flies the camera(s).
 // Protocol: docs/protocol.md. URL parameters (all optional): w, h (frame size),
 // layout (mono|stereo|split), views (split: 2-4), quality (1-100), eye (stereo eye
-// distance, metres), token.
+// distance, metres), codec (h264|jpeg; default: h264 where WebCodecs decodes it),
+// kbps (bitrate ceiling), token.
 'use strict';
 
 (() => {
   const FRAME_MAGIC = 0x31464346; // "FCF1" read as a little-endian u32
   const LAYOUTS = ['mono', 'stereo', 'split'];
+  const CODECS = ['jpeg', 'h264', 'raw']; // the header's codec byte
+  const V1_HEADER_BYTES = 32; // a header without the codec fields (a JPEG key frame)
+  const FLAG_KEY = 1;
+  // Constrained baseline, level 3.1; no `description`: the stream is Annex B, SPS and PPS
+  // arrive in band with every key frame.
+  const H264_CONFIG = { codec: 'avc1.42E01F', optimizeForLatency: true };
+  const KEYFRAME_RETRY_MS = 500; // while waiting for a requested key frame
   const MOVE_MPS = 2.0;
   const TURN_RAD_PER_S = 1.6;
   const LOOK_RAD_PER_PX = 0.005;
@@ -30,6 +38,9 @@
     width: num('w', 640),
     height: num('h', 360),
     quality: num('quality', 75),
+    maxKbps: params.has('kbps') ? num('kbps', undefined) : undefined,
+    codec: 'jpeg', // asked for in the hello (chooseCodec)
+    streamCodec: null, // the welcome's codec: what the server sends
     eye: params.has('eye') ? num('eye', 0.064) : undefined,
     token: params.get('token') || undefined,
     cams: [], // {pos: [x, y, z], yaw, pitch, fov} per pose of the session
@@ -41,10 +52,23 @@
     received: 0,
     shown: 0,
     arrivals: [], // [time, bytes] of the last second of frames
+    shownAt: [], // times of the frames shown in the last second
     latencyMs: null,
-    header: null,
-    pending: null,
+    header: null, // of the frame on the canvas
+    pending: null, // JPEG: the newest frame not yet decoded
     decoding: false,
+    decoder: null, // H.264: one VideoDecoder per stream
+    needKey: true, // H.264: deltas are dropped until a key frame
+    inDecoder: new Map(), // H.264: chunk timestamp -> header, for frames being decoded
+    lastKeyRequest: -Infinity,
+    corruptNext: false, // test hook: feed the next H.264 frame as garbage
+    lastAcked: -1,
+    framesDecoded: 0,
+    keyFrames: 0,
+    decodeErrors: 0,
+    clientDrops: 0, // frames received but never shown
+    acks: 0,
+    keyframeRequests: 0,
     errors: [],
     keys: new Set(),
     pointers: new Map(),
@@ -95,16 +119,42 @@
     messageTimer = setTimeout(() => { m.hidden = true; }, 5000);
   }
 
+  // ---- codec choice ----
+  async function h264Decodable() {
+    if (!window.VideoDecoder) return false;
+    try {
+      return (await VideoDecoder.isConfigSupported(H264_CONFIG)).supported === true;
+    } catch (e) {
+      return false;
+    }
+  }
+
+  // H.264 where this browser decodes it (WebCodecs), else JPEG; `?codec=` overrides, except
+  // that H.264 without WebCodecs cannot be shown at all.
+  async function chooseCodec() {
+    const asked = params.get('codec');
+    const h264 = await h264Decodable();
+    $('codec').querySelector('option[value=h264]').disabled = !h264;
+    if (asked === 'jpeg') return 'jpeg';
+    if (asked === 'h264' && !h264) showMessage('this browser cannot decode H.264 (WebCodecs): using JPEG');
+    return h264 ? 'h264' : 'jpeg';
+  }
+
+  // H.264 frames have even sizes (4:2:0); round an odd size from the URL down.
+  const evenFor = (codec, n) => (codec === 'h264' ? n - (n % 2) : n);
+
   function hello() {
     return {
       type: 'hello',
       version: 1,
-      width: state.width,
-      height: state.height,
+      width: evenFor(state.codec, state.width),
+      height: evenFor(state.codec, state.height),
       layout: state.layout,
       views: state.layout === 'split' ? state.views : undefined,
       quality: state.quality,
       eye_distance_m: state.layout === 'stereo' ? state.eye : undefined,
+      codec: state.codec,
+      max_kbps: state.maxKbps,
       token: state.token,
     };
   }
@@ -119,6 +169,7 @@
     const ws = new WebSocket(`${proto}//${location.host}/ws`);
     ws.binaryType = 'arraybuffer';
     state.ws = ws;
+    state.lastAcked = -1; // a restarted server numbers its frames from 0 again
     setStatus('connecting…');
     ws.onopen = () => ws.send(JSON.stringify(hello()));
     ws.onmessage = (ev) => (typeof ev.data === 'string' ? onText(ev.data) : onFrame(ev.data));
@@ -172,6 +223,8 @@
       state.quality = msg.quality;
       if (msg.layout === 'split') state.views = msg.views;
       state.dirty = true; // a reconnect keeps the camera where the user left it
+      startStream(msg.codec || 'jpeg');
+      if (msg.reason === 'bandwidth') showMessage(`slow link: the server now sends ${msg.width}×${msg.height}`);
       syncControls();
       setStatus(`connected · ${msg.scene} · session ${msg.session}`);
     } else if (msg.type === 'error') {
@@ -182,12 +235,16 @@
     }
   }
 
-  function onFrame(buf) {
-    if (buf.byteLength < 32) return;
+  // The fixed frame header (docs/protocol.md, "frames (binary)"); null if it is not one.
+  function parseHeader(buf) {
+    if (buf.byteLength < V1_HEADER_BYTES) return null;
     const dv = new DataView(buf);
-    if (dv.getUint32(0, true) !== FRAME_MAGIC) return;
+    if (dv.getUint32(0, true) !== FRAME_MAGIC) return null;
     const headerLen = dv.getUint16(4, true);
-    const h = {
+    if (headerLen < V1_HEADER_BYTES || headerLen > buf.byteLength) return null;
+    const extended = headerLen >= 40;
+    return {
+      headerLen,
       layout: LAYOUTS[dv.getUint8(6)],
       views: dv.getUint8(7),
       width: dv.getUint16(8, true),
@@ -197,9 +254,20 @@
       renderUs: dv.getUint32(20, true),
       encodeUs: dv.getUint32(24, true),
       dropped: dv.getUint32(28, true),
+      codec: extended ? CODECS[dv.getUint8(32)] : 'jpeg',
+      key: extended ? (dv.getUint8(33) & FLAG_KEY) !== 0 : true,
+      quality: extended ? dv.getUint8(34) : state.quality,
+      targetKbps: extended ? dv.getUint32(36, true) : null,
     };
+  }
+
+  function onFrame(buf) {
+    const h = parseHeader(buf);
+    // Raw frames are a debugging aid (raw_every) this client never asks for.
+    if (!h || h.codec === undefined || h.codec === 'raw') return;
     const now = performance.now();
     state.received++;
+    if (h.key) state.keyFrames++;
     state.arrivals.push([now, buf.byteLength]);
     const sent = state.sentAt.get(h.seq);
     if (sent !== undefined) {
@@ -207,8 +275,46 @@
       state.latencyMs = state.latencyMs === null ? ms : 0.8 * state.latencyMs + 0.2 * ms;
     }
     for (const s of state.sentAt.keys()) if (s <= h.seq) state.sentAt.delete(s);
-    // Latest frame wins here too: decode one at a time, always the newest.
-    state.pending = { h, blob: new Blob([new Uint8Array(buf, headerLen)], { type: 'image/jpeg' }) };
+    const payload = new Uint8Array(buf, h.headerLen);
+    if (h.codec === 'h264') decodeH264(h, payload);
+    else queueJpeg(h, payload);
+  }
+
+  // Sizes the canvas to the frame and draws `image` (an ImageBitmap or a VideoFrame).
+  function drawFrame(image, h) {
+    if (canvas.width !== h.width || canvas.height !== h.height) {
+      canvas.width = h.width;
+      canvas.height = h.height;
+    }
+    ctx.drawImage(image, 0, 0, h.width, h.height);
+    if (h.layout === 'split') outlineActiveTile(h);
+    state.header = h;
+    state.shown++;
+    state.framesDecoded++;
+    state.shownAt.push(performance.now());
+    ack(h.frame);
+  }
+
+  // Flow control (docs/protocol.md, "ack"): acks are cumulative, so one per frame shown
+  // covers the frames skipped before it. A frame dropped here is acked too: it was
+  // delivered, and the server must not wait for an ack that would never come.
+  function ack(frame) {
+    if (frame <= state.lastAcked) return;
+    if (send({ type: 'ack', frame })) {
+      state.lastAcked = frame;
+      state.acks++;
+    }
+  }
+
+  function dropFrame(h) {
+    state.clientDrops++;
+    ack(h.frame);
+  }
+
+  // ---- JPEG: latest frame wins here too, decode one at a time, always the newest ----
+  function queueJpeg(h, payload) {
+    if (state.pending) state.clientDrops++; // replaced before it was decoded
+    state.pending = { h, blob: new Blob([payload], { type: 'image/jpeg' }) };
     if (!state.decoding) drawPending();
   }
 
@@ -219,20 +325,112 @@
       state.pending = null;
       try {
         const bmp = await createImageBitmap(blob);
-        if (canvas.width !== bmp.width || canvas.height !== bmp.height) {
-          canvas.width = bmp.width;
-          canvas.height = bmp.height;
-        }
-        ctx.drawImage(bmp, 0, 0);
+        drawFrame(bmp, h);
         bmp.close();
-        if (h.layout === 'split') outlineActiveTile(h);
-        state.header = h;
-        state.shown++;
       } catch (e) {
+        state.decodeErrors++;
+        dropFrame(h);
         console.warn('fogcast: frame decode failed', e);
       }
     }
     state.decoding = false;
+  }
+
+  // ---- H.264 through WebCodecs ----
+  // A new stream starts with every welcome (the server sends a key frame after it).
+  function startStream(codec) {
+    state.streamCodec = codec;
+    if (codec === 'h264') startDecoder();
+    else closeDecoder();
+  }
+
+  function closeDecoder() {
+    const dec = state.decoder;
+    state.decoder = null;
+    if (dec && dec.state !== 'closed') dec.close();
+    state.clientDrops += state.inDecoder.size; // lost with the decoder
+    state.inDecoder.clear();
+  }
+
+  // A fresh decoder, which needs a key frame first.
+  function startDecoder() {
+    closeDecoder();
+    state.needKey = true;
+    if (!window.VideoDecoder) {
+      showMessage('the server sends H.264 but this browser cannot decode it: switching to JPEG');
+      state.codec = 'jpeg';
+      configure({ codec: 'jpeg' });
+      return;
+    }
+    const dec = new VideoDecoder({
+      output: (frame) => onDecoded(dec, frame),
+      // Errors of a decoder already replaced (closed on purpose) are not news.
+      error: (e) => { if (dec === state.decoder) decodeFailed(e); },
+    });
+    dec.configure(H264_CONFIG);
+    state.decoder = dec;
+  }
+
+  function decodeH264(h, payload) {
+    if (!state.decoder || state.decoder.state === 'closed') startDecoder();
+    if (!state.decoder) return;
+    // A delta frame refers to frames this decoder never saw: drop it, ask for a key frame.
+    if (state.needKey && !h.key) {
+      dropFrame(h);
+      requestKeyframe();
+      return;
+    }
+    state.needKey = false;
+    let data = payload;
+    if (state.corruptNext) {
+      state.corruptNext = false;
+      data = notH264(payload.length);
+    }
+    const timestamp = h.frame * 1000; // µs; server frame numbers only grow within a stream
+    state.inDecoder.set(timestamp, h);
+    try {
+      state.decoder.decode(new EncodedVideoChunk({ type: h.key ? 'key' : 'delta', timestamp, data }));
+    } catch (e) {
+      decodeFailed(e);
+    }
+  }
+
+  function onDecoded(dec, frame) {
+    const h = state.inDecoder.get(frame.timestamp);
+    // Frames come out in decode order: older ones still listed were never output.
+    for (const t of state.inDecoder.keys()) {
+      if (t > frame.timestamp) break;
+      if (t < frame.timestamp) state.clientDrops++;
+      state.inDecoder.delete(t);
+    }
+    if (dec === state.decoder && h) drawFrame(frame, h);
+    frame.close();
+  }
+
+  // Start over from the next key frame, which the server sends at once when asked.
+  function decodeFailed(e) {
+    state.decodeErrors++;
+    console.warn('fogcast: H.264 decode failed; asking for a key frame', e);
+    const newest = Math.max(-1, ...[...state.inDecoder.values()].map((h) => h.frame));
+    startDecoder();
+    if (newest >= 0) ack(newest);
+    requestKeyframe();
+  }
+
+  function requestKeyframe() {
+    const now = performance.now();
+    if (now - state.lastKeyRequest < KEYFRAME_RETRY_MS) return;
+    if (send({ type: 'keyframe' })) {
+      state.lastKeyRequest = now;
+      state.keyframeRequests++;
+    }
+  }
+
+  // Bytes no H.264 decoder accepts (no start code): the test hook's "corrupt frame".
+  function notH264(length) {
+    const data = new Uint8Array(Math.max(16, length));
+    for (let i = 0; i < data.length; i++) data[i] = (i * 7919 + 13) & 0xff;
+    return data;
   }
 
   function outlineActiveTile(h) {
@@ -350,6 +548,7 @@
     sel.value = res;
     $('quality').value = state.quality;
     $('quality-value').textContent = state.quality;
+    $('codec').value = state.streamCodec || state.codec;
   }
 
   function configure(change) {
@@ -361,6 +560,7 @@
         width: change.width ?? state.width,
         height: change.height ?? state.height,
         quality: change.quality ?? state.quality,
+        codec: change.codec ?? state.codec,
       });
       connect();
     }
@@ -377,6 +577,12 @@
     configure({ width, height });
     e.target.blur();
   });
+  $('codec').addEventListener('change', (e) => {
+    const codec = e.target.value;
+    state.codec = codec; // a reconnect asks for it too
+    configure({ codec, width: evenFor(codec, state.width), height: evenFor(codec, state.height) });
+    e.target.blur();
+  });
   $('quality').addEventListener('input', (e) => { $('quality-value').textContent = e.target.value; });
   $('quality').addEventListener('change', (e) => {
     configure({ quality: +e.target.value });
@@ -384,29 +590,59 @@
   });
 
   // ---- overlay ----
-  function fps() {
+  // Drops entries older than a second from a list whose entries start with a time.
+  function lastSecond(list, timeOf) {
     const now = performance.now();
-    while (state.arrivals.length && now - state.arrivals[0][0] > 1000) state.arrivals.shift();
-    return state.arrivals.length;
+    while (list.length && now - timeOf(list[0]) > 1000) list.shift();
+    return list;
   }
+  const fps = () => lastSecond(state.shownAt, (t) => t).length;
+  // Bitrate received over the last second (headers included), kbit/s.
+  const kbps = () => lastSecond(state.arrivals, ([t]) => t).reduce((sum, [, bytes]) => sum + bytes, 0) * 8 / 1000;
+  const serverDropped = () => (state.header ? state.header.dropped : 0);
+
   function updateOverlay() {
     const h = state.header;
-    const kbps = state.arrivals.reduce((a, [, b]) => a + b, 0) / 1024;
-    const lines = [
-      `fps ${fps().toString().padStart(3)}   latency ${state.latencyMs === null ? '–' : state.latencyMs.toFixed(0) + ' ms'}`,
-      h ? `${h.width}×${h.height} ${h.layout}${h.views > 1 ? ' ×' + h.views : ''} q${state.quality}  ${kbps.toFixed(0)} KiB/s` : 'waiting for frames…',
-      h ? `render ${(h.renderUs / 1000).toFixed(1)} ms  encode ${(h.encodeUs / 1000).toFixed(1)} ms  dropped ${h.dropped}` : '',
-    ];
+    const latency = state.latencyMs === null ? '–' : `${state.latencyMs.toFixed(0)} ms`;
+    const codec = state.streamCodec || state.codec;
+    const lines = [`${codec}  fps ${fps().toString().padStart(3)}  latency ${latency}`];
+    if (h) {
+      const jpegQuality = h.codec === 'jpeg' ? `  q${h.quality}` : '';
+      const target = h.targetKbps ? ` (target ${h.targetKbps})` : '';
+      lines.push(
+        `${h.width}×${h.height} ${h.layout}${h.views > 1 ? ' ×' + h.views : ''}${jpegQuality}`,
+        `${kbps().toFixed(0)} kbit/s${target}`,
+        `render ${(h.renderUs / 1000).toFixed(1)} ms  encode ${(h.encodeUs / 1000).toFixed(1)} ms`,
+        `dropped ${serverDropped() + state.clientDrops} (server ${serverDropped()}, here ${state.clientDrops})  decode errors ${state.decodeErrors}`,
+      );
+    } else {
+      lines.push('waiting for frames…');
+    }
     if (state.cams.length > 1) lines.push(`controlling view ${state.active + 1}/${state.cams.length} (keys 1–${state.cams.length})`);
-    $('overlay').textContent = lines.filter(Boolean).join('\n');
+    $('overlay').textContent = lines.join('\n');
   }
 
-  // Hooks for tests and the console.
+  // Hooks for tests and the console: the overlay's numbers, and more.
   window.fogcast = {
     stats: () => ({
       connected: state.connected,
+      codec: state.streamCodec, // what the server sends (the welcome's)
+      askedCodec: state.codec, // what the hello asked for
       received: state.received,
       shown: state.shown,
+      framesDecoded: state.framesDecoded,
+      keyFrames: state.keyFrames,
+      decodeErrors: state.decodeErrors,
+      clientDrops: state.clientDrops,
+      serverDropped: serverDropped(),
+      acks: state.acks,
+      lastAcked: state.lastAcked,
+      keyframeRequests: state.keyframeRequests,
+      lastFrame: state.header ? state.header.frame : null,
+      frameCodec: state.header ? state.header.codec : null,
+      quality: state.header ? state.header.quality : null,
+      targetKbps: state.header ? state.header.targetKbps : null,
+      kbps: kbps(),
       seq: state.seq,
       frameSeq: state.header ? state.header.seq : null,
       latencyMs: state.latencyMs,
@@ -417,6 +653,8 @@
       errors: state.errors.map((e) => e.code),
       camera: state.cams[state.active] || null,
     }),
+    // Feeds the next H.264 frame to the decoder as garbage: a decode error to recover from.
+    corruptNextFrame: () => { state.corruptNext = true; },
     // Mean luma and an 8x8 grid of mean lumas of what the canvas shows (0-255).
     canvasStats: () => {
       const { width: w, height: h } = canvas;
@@ -437,8 +675,11 @@
     },
   };
 
-  syncControls();
   setInterval(tick, 1000 / POSE_HZ);
   setInterval(updateOverlay, 250);
-  connect();
+  chooseCodec().then((codec) => {
+    state.codec = codec;
+    syncControls();
+    connect();
+  });
 })();
