@@ -69,6 +69,7 @@
     clientDrops: 0, // frames received but never shown
     acks: 0,
     keyframeRequests: 0,
+    idleClosed: false, // the server closed the session as idle: reconnect on user input
     errors: [],
     keys: new Set(),
     pointers: new Map(),
@@ -185,6 +186,12 @@
         showMessage(reason);
         return;
       }
+      // Closed for sending no pose for a long time: come back when the user does something.
+      if (ev.code === 4408 && ev.reason.startsWith('idle')) {
+        state.idleClosed = true;
+        setStatus('closed while idle: press a key or click to reconnect', true);
+        return;
+      }
       const wait = state.retryMs;
       state.retryMs = Math.min(state.retryMs * 2, 5000);
       setStatus(`disconnected (${reason}); retrying in ${(wait / 1000).toFixed(1)} s`, true);
@@ -218,8 +225,12 @@
       state.connected = true;
       state.retryMs = 500;
       state.layout = msg.layout;
-      state.width = msg.width;
-      state.height = msg.height;
+      // A bandwidth welcome shrinks the frames for a while, not what the user asked for
+      // (which a reconnect asks for again).
+      if (msg.reason !== 'bandwidth') {
+        state.width = msg.width;
+        state.height = msg.height;
+      }
       state.quality = msg.quality;
       if (msg.layout === 'split') state.views = msg.views;
       state.dirty = true; // a reconnect keeps the camera where the user left it
@@ -499,8 +510,15 @@
     state.dirty = true;
   }
 
+  function wakeFromIdle() {
+    if (!state.idleClosed) return;
+    state.idleClosed = false;
+    connect();
+  }
+
   const CONTROL_KEYS = new Set(['ArrowUp', 'ArrowDown', 'ArrowLeft', 'ArrowRight', 'PageUp', 'PageDown', 'Space']);
   window.addEventListener('keydown', (e) => {
+    wakeFromIdle();
     if (e.target instanceof HTMLSelectElement || e.target instanceof HTMLInputElement) return;
     if (/^Digit[1-4]$/.test(e.code)) {
       const i = +e.code.slice(5) - 1;
@@ -515,6 +533,7 @@
 
   // Pointer events cover mouse, pen and touch: one pointer looks, two move.
   canvas.addEventListener('pointerdown', (e) => {
+    wakeFromIdle();
     canvas.setPointerCapture(e.pointerId);
     state.pointers.set(e.pointerId, [e.clientX, e.clientY]);
     canvas.focus();
