@@ -414,13 +414,13 @@ async fn chromium_decodes_h264_with_webcodecs() {
     );
     let fps = u64_of(&after_stats, "fps");
     assert!(
-        (5..=25).contains(&fps),
-        "about the server's 20 fps shown: {after_stats}"
+        (2..=25).contains(&fps),
+        "frames shown per second, at most the server's 20 (and some jitter): {after_stats}"
     );
     let kbps = after_stats["kbps"].as_f64().unwrap();
     assert!(
-        (10.0..=20_000.0).contains(&kbps),
-        "received bitrate: {after_stats}"
+        (1.0..=20_000.0).contains(&kbps),
+        "received bitrate over the last second: {after_stats}"
     );
     let target = u64_of(&after_stats, "targetKbps");
     assert!(
@@ -431,7 +431,7 @@ async fn chromium_decodes_h264_with_webcodecs() {
     // for a client that acks, kept streaming.
     let (shown, acks) = (u64_of(&after_stats, "shown"), u64_of(&after_stats, "acks"));
     assert!(
-        acks >= shown / 2 && acks <= shown + 1,
+        acks >= shown / 2 && acks <= u64_of(&after_stats, "received"),
         "about one ack per frame shown: {after_stats}"
     );
     let m = metrics(addr).await;
@@ -481,7 +481,7 @@ async fn h264_decode_error_recovers_with_a_keyframe_request() {
             s["framesDecoded"].as_u64() >= Some(10) && s["codec"] == "h264"
         })
         .await;
-    let keys = u64_of(&s, "keyFrames");
+    let (keys, requests) = (u64_of(&s, "keyFrames"), u64_of(&s, "keyframeRequests"));
 
     cdp.eval("window.fogcast.corruptNextFrame()").await;
     let t0 = Instant::now();
@@ -490,8 +490,8 @@ async fn h264_decode_error_recovers_with_a_keyframe_request() {
         .await;
     assert_eq!(
         u64_of(&broken, "keyframeRequests"),
-        1,
-        "one key frame request: {broken}"
+        requests + 1,
+        "the error sent a key frame request at once: {broken}"
     );
     let decoded = u64_of(&broken, "framesDecoded");
     let s = cdp
@@ -506,7 +506,10 @@ async fn h264_decode_error_recovers_with_a_keyframe_request() {
         "a key frame followed the request: {s}"
     );
     assert_eq!(u64_of(&s, "decodeErrors"), 1, "{s}");
-    assert!(u64_of(&s, "keyframeRequests") <= 2, "{s}");
+    assert!(
+        u64_of(&s, "keyframeRequests") <= requests + 3,
+        "one request, repeated at most every 500 ms: {s}"
+    );
     assert!(recovered_s < 5.0, "recovery took {recovered_s:.2} s");
     assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
     assert_not_black(
