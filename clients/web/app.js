@@ -626,11 +626,11 @@
     const codec = state.streamCodec || state.codec;
     const lines = [`${codec}  fps ${fps().toString().padStart(3)}  latency ${latency}`];
     if (h) {
-      const jpegQuality = h.codec === 'jpeg' ? `  q${h.quality}` : '';
+      const jpegQuality = h.codec === 'jpeg' ? `  JPEG quality ${h.quality}` : '';
       const target = h.targetKbps ? ` (target ${h.targetKbps})` : '';
       lines.push(
         `${h.width}×${h.height} ${h.layout}${h.views > 1 ? ' ×' + h.views : ''}${jpegQuality}`,
-        `${kbps().toFixed(0)} kbit/s${target}`,
+        `${kbps().toFixed(0)} kbit/s received${target}`,
         `render ${(h.renderUs / 1000).toFixed(1)} ms  encode ${(h.encodeUs / 1000).toFixed(1)} ms`,
         `dropped ${serverDropped() + state.clientDrops} (server ${serverDropped()}, here ${state.clientDrops})  decode errors ${state.decodeErrors}`,
       );
