@@ -436,6 +436,11 @@ async fn chromium_decodes_h264_with_webcodecs() {
     );
     let m = metrics(addr).await;
     assert!(
+        metric(&m, "fogcast_frames_encoded_total", "codec=\"h264\"") >= shown as f64,
+        "the server encoded every frame shown as H.264: {m}"
+    );
+    assert!(metric(&m, "fogcast_key_frames_total", "") >= 1.0, "{m}");
+    assert!(
         metric(&m, "fogcast_frames_sent_total", "") >= shown as f64,
         "{m}"
     );
@@ -471,7 +476,12 @@ async fn chromium_without_webcodecs_falls_back_to_jpeg() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn h264_decode_error_recovers_with_a_keyframe_request() {
-    let server = start(test_config()).await;
+    // No periodic key frames (3 minutes apart): only the request can bring one soon.
+    let server = start(fogcast::server::ServerConfig {
+        gop_frames: 3600,
+        ..test_config()
+    })
+    .await;
     let addr = server.local_addr();
     let mut page = open_page(addr, "?w=160&h=90&codec=h264", None).await;
     let cdp = &mut page.cdp;
@@ -506,6 +516,11 @@ async fn h264_decode_error_recovers_with_a_keyframe_request() {
         "a key frame followed the request: {s}"
     );
     assert_eq!(u64_of(&s, "decodeErrors"), 1, "{s}");
+    let server_keys = metric(&metrics(addr).await, "fogcast_key_frames_total", "");
+    assert!(
+        (2.0..=5.0).contains(&server_keys),
+        "the stream's first key frame and the requested one(s): {server_keys}"
+    );
     assert!(
         u64_of(&s, "keyframeRequests") <= requests + 3,
         "one request, repeated at most every 500 ms: {s}"
