@@ -389,6 +389,28 @@ async fn chromium_decodes_h264_with_webcodecs() {
         "first decoded",
     );
 
+    // A new welcome (here for a configure from the resolution menu) starts a new stream:
+    // the page restarts its decoder at the stream's key frame and the canvas takes the
+    // new size.
+    cdp.eval(
+        "(() => { const menu = document.getElementById('resolution'); \
+         menu.value = '320x180'; menu.dispatchEvent(new Event('change')); })()",
+    )
+    .await;
+    let resized = cdp
+        .wait_stats("3 frames of the new size decoded", |r| {
+            r["width"] == 320
+                && r["framesDecoded"].as_u64() >= Some(u64_of(&s, "framesDecoded") + 3)
+        })
+        .await;
+    assert_eq!(resized["height"].as_u64(), Some(180), "{resized}");
+    assert!(
+        u64_of(&resized, "keyFrames") > u64_of(&s, "keyFrames"),
+        "the new stream began with a key frame: {resized}"
+    );
+    assert_eq!(u64_of(&resized, "decodeErrors"), 0, "{resized}");
+    assert_eq!(resized["codec"].as_str(), Some("h264"), "{resized}");
+
     let (before, after, after_stats) = fly(cdp).await;
     let diff = grid_diff(&before, &after);
     eprintln!(
