@@ -292,10 +292,10 @@ async fn chromium_shows_frames_and_flies_the_camera() {
         (Some("jpeg"), Some("jpeg")),
         "{s}"
     );
-    assert_eq!(
-        s["quality"].as_u64(),
-        Some(90),
-        "asked quality on an idle link: {s}"
+    let quality = u64_of(&s, "quality");
+    assert!(
+        (20..=90).contains(&quality),
+        "the header's JPEG quality: at most the 90 asked for, at least the server's 20: {s}"
     );
     assert_not_black(
         &cdp.eval("window.fogcast.canvasStats()").await,
