@@ -15,6 +15,7 @@
   // arrive in band with every key frame.
   const H264_CONFIG = { codec: 'avc1.42E01F', optimizeForLatency: true };
   const KEYFRAME_RETRY_MS = 500; // while waiting for a requested key frame
+  const MAX_ERRORS_IN_A_ROW = 3; // then the decoder is broken, not the stream: use JPEG
   const MOVE_MPS = 2.0;
   const TURN_RAD_PER_S = 1.6;
   const LOOK_RAD_PER_PX = 0.005;
@@ -66,6 +67,7 @@
     framesDecoded: 0,
     keyFrames: 0,
     decodeErrors: 0,
+    errorsInARow: 0, // H.264 decode errors since the last frame decoded
     clientDrops: 0, // frames received but never shown
     acks: 0,
     keyframeRequests: 0,
@@ -351,8 +353,18 @@
   // A new stream starts with every welcome (the server sends a key frame after it).
   function startStream(codec) {
     state.streamCodec = codec;
-    if (codec === 'h264') startDecoder();
-    else closeDecoder();
+    state.errorsInARow = 0;
+    closeDecoder();
+    if (codec !== 'h264') return;
+    if (window.VideoDecoder) startDecoder();
+    else fallBackToJpeg('the server sends H.264 and this browser has no WebCodecs');
+  }
+
+  // Until the welcome for it arrives, H.264 frames are dropped (there is no decoder).
+  function fallBackToJpeg(why) {
+    showMessage(`${why}: switching to JPEG`);
+    state.codec = 'jpeg';
+    configure({ codec: 'jpeg' });
   }
 
   function closeDecoder() {
@@ -367,12 +379,6 @@
   function startDecoder() {
     closeDecoder();
     state.needKey = true;
-    if (!window.VideoDecoder) {
-      showMessage('the server sends H.264 but this browser cannot decode it: switching to JPEG');
-      state.codec = 'jpeg';
-      configure({ codec: 'jpeg' });
-      return;
-    }
     const dec = new VideoDecoder({
       output: (frame) => onDecoded(dec, frame),
       // Errors of a decoder already replaced (closed on purpose) are not news.
@@ -383,8 +389,10 @@
   }
 
   function decodeH264(h, payload) {
-    if (!state.decoder || state.decoder.state === 'closed') startDecoder();
-    if (!state.decoder) return;
+    if (!state.decoder) {
+      dropFrame(h);
+      return;
+    }
     // A delta frame refers to frames this decoder never saw: drop it, ask for a key frame.
     if (state.needKey && !h.key) {
       dropFrame(h);
@@ -407,24 +415,36 @@
   }
 
   function onDecoded(dec, frame) {
-    const h = state.inDecoder.get(frame.timestamp);
-    // Frames come out in decode order: older ones still listed were never output.
-    for (const t of state.inDecoder.keys()) {
-      if (t > frame.timestamp) break;
-      if (t < frame.timestamp) state.clientDrops++;
-      state.inDecoder.delete(t);
+    if (dec === state.decoder) {
+      const h = state.inDecoder.get(frame.timestamp);
+      // Frames come out in decode order: older ones still listed were never output.
+      for (const t of state.inDecoder.keys()) {
+        if (t > frame.timestamp) break;
+        if (t < frame.timestamp) state.clientDrops++;
+        state.inDecoder.delete(t);
+      }
+      if (h) {
+        state.errorsInARow = 0;
+        drawFrame(frame, h);
+      }
     }
-    if (dec === state.decoder && h) drawFrame(frame, h);
     frame.close();
   }
 
   // Start over from the next key frame, which the server sends at once when asked.
+  // A decoder that fails again and again (without a frame between) is given up for JPEG.
   function decodeFailed(e) {
     state.decodeErrors++;
-    console.warn('fogcast: H.264 decode failed; asking for a key frame', e);
+    state.errorsInARow++;
     const newest = Math.max(-1, ...[...state.inDecoder.values()].map((h) => h.frame));
-    startDecoder();
+    closeDecoder();
     if (newest >= 0) ack(newest);
+    if (state.errorsInARow >= MAX_ERRORS_IN_A_ROW) {
+      fallBackToJpeg(`H.264 decoding keeps failing (${e.message})`);
+      return;
+    }
+    console.warn('fogcast: H.264 decode failed; asking for a key frame', e);
+    startDecoder();
     requestKeyframe();
   }
 
