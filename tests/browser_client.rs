@@ -1,8 +1,8 @@
 //! The browser client in real headless Chromium (Debian's `chromium`, installed by
 //! `make deps`): it connects, shows frames, flies the camera on synthetic key presses,
 //! and reconnects after the server goes away and comes back; it picks H.264 and decodes
-//! it with WebCodecs, falls back to JPEG without WebCodecs, and recovers from a decode
-//! error with a key frame request.
+//! it with WebCodecs, falls back to JPEG without WebCodecs (or with a decoder that keeps
+//! failing), and recovers from a decode error with a key frame request.
 //!
 //! Chromium is driven over the DevTools protocol on a loopback WebSocket. One browser
 //! at a time: each test measures frame rates and latencies that a second Chromium
@@ -553,6 +553,37 @@ async fn h264_decode_error_recovers_with_a_keyframe_request() {
         &cdp.eval("window.fogcast.canvasStats()").await,
         "after recovery",
     );
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn h264_decoder_that_keeps_failing_falls_back_to_jpeg() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    // WebCodecs says it decodes H.264, then every decode fails.
+    let broken = "VideoDecoder.prototype.decode = function () { \
+                  throw new DOMException('broken on purpose', 'EncodingError'); };";
+    let mut page = open_page(addr, "?w=160&h=90", Some(broken)).await;
+    let cdp = &mut page.cdp;
+
+    let s = cdp
+        .wait_stats("JPEG frames after giving up on H.264", |s| {
+            s["codec"] == "jpeg" && s["shown"].as_u64() >= Some(3)
+        })
+        .await;
+    assert_eq!(s["askedCodec"].as_str(), Some("jpeg"), "{s}");
+    assert_eq!(s["frameCodec"].as_str(), Some("jpeg"), "{s}");
+    assert_eq!(
+        u64_of(&s, "decodeErrors"),
+        3,
+        "three errors in a row, then JPEG: {s}"
+    );
+    assert!(
+        (1..=3).contains(&u64_of(&s, "keyframeRequests")),
+        "key frame requests between the errors, 500 ms apart at most: {s}"
+    );
+    assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
+    assert_not_black(&cdp.eval("window.fogcast.canvasStats()").await, "in JPEG");
     server.shutdown().await.unwrap();
 }
 
