@@ -20,7 +20,7 @@
   const TURN_RAD_PER_S = 1.6;
   const LOOK_RAD_PER_PX = 0.005;
   const POSE_HZ = 60; // while moving
-  const KEEPALIVE_MS = 250; // pose resend while still, so latency stays measured
+  const KEEPALIVE_MS = 250; // pose resend while still and visible, so latency stays measured
 
   const $ = (id) => document.getElementById(id);
   const canvas = $('view');
@@ -519,7 +519,10 @@
       }
     }
     const since = now - state.lastSend;
-    if ((state.dirty && since >= 1000 / POSE_HZ) || since >= KEEPALIVE_MS) sendPose(now);
+    // No keepalive from a hidden page: a tab left in the background goes idle on the
+    // server (closed after idle_timeout_s) instead of holding its views forever.
+    const keepalive = since >= KEEPALIVE_MS && !document.hidden;
+    if ((state.dirty && since >= 1000 / POSE_HZ) || keepalive) sendPose(now);
   }
 
   function look(dx, dy) {
@@ -550,6 +553,7 @@
   });
   window.addEventListener('keyup', (e) => state.keys.delete(e.code));
   window.addEventListener('blur', () => state.keys.clear());
+  document.addEventListener('visibilitychange', () => { if (!document.hidden) wakeFromIdle(); });
 
   // Pointer events cover mouse, pen and touch: one pointer looks, two move.
   canvas.addEventListener('pointerdown', (e) => {
