@@ -2,7 +2,8 @@
 //! `make deps`): it connects, shows frames, flies the camera on synthetic key presses,
 //! and reconnects after the server goes away and comes back; it picks H.264 and decodes
 //! it with WebCodecs, falls back to JPEG without WebCodecs (or with a decoder that keeps
-//! failing), and recovers from a decode error with a key frame request.
+//! failing), recovers from a decode error with a key frame request, and lets a hidden
+//! page go idle.
 //!
 //! Chromium is driven over the DevTools protocol on a loopback WebSocket. One browser
 //! at a time: each test measures frame rates and latencies that a second Chromium
@@ -591,6 +592,63 @@ async fn h264_decoder_that_keeps_failing_falls_back_to_jpeg() {
     );
     assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
     assert_not_black(&cdp.eval("window.fogcast.canvasStats()").await, "in JPEG");
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hidden_page_goes_idle_and_comes_back_when_shown() {
+    let server = start(fogcast::server::ServerConfig {
+        idle_timeout_s: 1.0,
+        ..test_config()
+    })
+    .await;
+    let addr = server.local_addr();
+    // Headless Chromium's page is always visible: `document.hidden` follows a test flag.
+    let hidden =
+        "Object.defineProperty(document, 'hidden', { get: () => window.testHidden === true });";
+    let mut page = open_page(addr, "?w=160&h=90", Some(hidden)).await;
+    let cdp = &mut page.cdp;
+    cdp.wait_stats("3 frames shown", |s| s["shown"].as_u64() >= Some(3))
+        .await;
+    // Visible and still: keepalive poses keep the session open past the idle timeout.
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert_eq!(cdp.stats().await["connected"], true, "a visible page stays");
+
+    cdp.eval("window.testHidden = true").await;
+    let t0 = Instant::now();
+    cdp.wait_stats("closed as idle", |s| s["connected"] == false)
+        .await;
+    let idle_s = t0.elapsed().as_secs_f64();
+    eprintln!("browser: closed as idle {idle_s:.2} s after the page was hidden");
+    // The idle clock started at the last keepalive pose, up to 250 ms before hiding.
+    assert!(
+        (0.6..=5.0).contains(&idle_s),
+        "closed {idle_s:.2} s after the page was hidden (idle_timeout_s 1)"
+    );
+    let status = cdp
+        .eval("document.getElementById('status').textContent")
+        .await;
+    assert!(
+        status.as_str().is_some_and(|s| s.contains("idle")),
+        "the page says why: {status}"
+    );
+    // No reconnect on its own while hidden...
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert_eq!(
+        cdp.stats().await["connected"],
+        false,
+        "a hidden page stays closed"
+    );
+    // ...and one as soon as it is shown.
+    let shown = u64_of(&cdp.stats().await, "shown");
+    cdp.eval("window.testHidden = false; document.dispatchEvent(new Event('visibilitychange'))")
+        .await;
+    cdp.wait_stats("reconnected and streaming", |s| {
+        s["connected"] == true && s["shown"].as_u64() >= Some(shown + 2)
+    })
+    .await;
+    let m = metrics(addr).await;
+    assert_eq!(metric(&m, "fogcast_sessions_idle_total", ""), 1.0, "{m}");
     server.shutdown().await.unwrap();
 }
 
