@@ -592,6 +592,7 @@
     $('quality').value = state.quality;
     $('quality-value').textContent = state.quality;
     $('codec').value = state.streamCodec || state.codec;
+    $('quality').disabled = $('codec').value !== 'jpeg'; // JPEG quality: H.264 has a bitrate
   }
 
   function configure(change) {
