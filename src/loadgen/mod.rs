@@ -22,20 +22,34 @@
 //! Then it closes the sessions, waits for the server to let them go, and goes on to the
 //! next point. [`run`] does the sweep, [`write_report`] writes loadgen.json, .csv, .md
 //! and the plots.
+//!
+//! Streaming scenarios (issue 17): every viewer acks its frames (`--ack`), asks for
+//! `--codec jpeg|h264`, and optionally measures image quality against raw frames
+//! (`--raw-every`, [`quality`]); the first `--throttled` viewers of a point read their
+//! socket at `--throttle-kbps` ([`Throttled`]) and are reported as their own class; a
+//! baseline phase (`--baseline-s`) measures the unthrottled viewers alone first; the
+//! window is also cut into `--window-s` pieces so latency and memory creep show;
+//! `--churn-s` closes and reopens every session periodically; `--check-*` turn the
+//! numbers into pass/fail ([`Checks`]).
 
+mod checks;
 mod cli;
 mod client;
 mod output;
 mod paths;
+pub mod quality;
 mod scrape;
 mod stats;
+mod throttle;
 
-pub use cli::{loadgen, LayoutArg, LoadgenArgs, SweepArg};
+pub use checks::{CheckResult, Checks};
+pub use cli::{loadgen, AckArg, CodecArg, LayoutArg, LoadgenArgs, SweepArg};
 pub use output::write_report;
+pub use throttle::Throttled;
 
-use crate::protocol::{Hello, Layout, MAX_SPLIT_VIEWS, PROTOCOL_VERSION};
+use crate::protocol::{Codec, Hello, Layout, Welcome, MAX_SPLIT_VIEWS, PROTOCOL_VERSION};
 use anyhow::Context as _;
-use client::{Flight, Live, Target};
+use client::{Behaviour, Flight, Live, Target, ViewerRecord, Ws};
 use paths::Paths;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -132,6 +146,29 @@ pub struct LoadgenConfig {
     pub token: Option<String>,
     /// Scene whose camera loop the viewers fly (default: the server's scene per `/healthz`).
     pub scene: Option<String>,
+    /// Frame codec each session asks for.
+    pub codec: Codec,
+    /// Every viewer acks every frame it receives (flow control on the server).
+    pub ack: bool,
+    /// Bitrate ceiling each session asks for, kbit/s (default: the server's).
+    pub max_kbps: Option<u32>,
+    /// Ask for a raw frame every `raw_every` frames and measure the encoded frames' PSNR
+    /// against them (needs a server with `debug_raw_frames`).
+    pub raw_every: Option<u32>,
+    /// The throttled viewers read their socket at this many kbit/s.
+    pub throttle_kbps: Option<u32>,
+    /// How many viewers of each point are throttled (the first ones).
+    pub throttled: usize,
+    /// Length of the windows the measured run is cut into (latency, fps and server
+    /// memory per window), seconds.
+    pub window_s: f64,
+    /// Every viewer closes and reopens its session this often, seconds (staggered).
+    pub churn_s: Option<f64>,
+    /// Seconds of a baseline phase with only the unthrottled viewers, before the
+    /// throttled ones join and the measured window starts.
+    pub baseline_s: Option<f64>,
+    /// Pass/fail checks on the numbers.
+    pub checks: Checks,
 }
 
 impl Default for LoadgenConfig {
@@ -149,6 +186,16 @@ impl Default for LoadgenConfig {
             split_views: 2,
             token: None,
             scene: None,
+            codec: Codec::Jpeg,
+            ack: true,
+            max_kbps: None,
+            raw_every: None,
+            throttle_kbps: None,
+            throttled: 0,
+            window_s: 60.0,
+            churn_s: None,
+            baseline_s: None,
+            checks: Checks::default(),
         }
     }
 }
@@ -221,7 +268,95 @@ impl LoadgenConfig {
             "--quality {}: must be 1..=100",
             self.quality
         );
-        Ok(())
+        self.validate_streaming()
+    }
+
+    /// The streaming scenario's flags (issue 17), checked.
+    fn validate_streaming(&self) -> anyhow::Result<()> {
+        if self.codec == Codec::H264 {
+            for s in &self.sizes {
+                anyhow::ensure!(
+                    s.width.is_multiple_of(2) && s.height.is_multiple_of(2),
+                    "frame size {s} with --codec h264: H.264 needs an even width and height"
+                );
+            }
+        }
+        if let Some(k) = self.max_kbps {
+            anyhow::ensure!(
+                k >= 100,
+                "--max-kbps {k}: must be at least 100 (the protocol's floor)"
+            );
+        }
+        if let Some(n) = self.raw_every {
+            anyhow::ensure!((1..=1000).contains(&n), "--raw-every {n}: must be 1..=1000");
+        }
+        match self.throttle_kbps {
+            Some(k) => {
+                anyhow::ensure!(
+                    (8..=10_000_000).contains(&k),
+                    "--throttle-kbps {k}: must be 8..=10000000"
+                );
+                let per = self.views_per_session();
+                for &n in &self.viewers {
+                    let sessions = n / per;
+                    anyhow::ensure!(
+                        self.throttled <= sessions,
+                        "--throttled {}: the point of {n} views has only {sessions} sessions",
+                        self.throttled
+                    );
+                    anyhow::ensure!(
+                        self.baseline_s.is_none() || self.throttled < sessions,
+                        "--baseline-s with --throttled {} at {n} views: the baseline needs at least one unthrottled viewer",
+                        self.throttled
+                    );
+                }
+            }
+            None => anyhow::ensure!(
+                self.throttled == 0,
+                "--throttled {}: give --throttle-kbps too (the rate the throttled viewers read at)",
+                self.throttled
+            ),
+        }
+        for (flag, v, lo, hi) in [
+            ("--window-s", Some(self.window_s), 1.0, 3600.0),
+            ("--churn-s", self.churn_s, 1.0, 3600.0),
+            ("--baseline-s", self.baseline_s, 1.0, 3600.0),
+        ] {
+            if let Some(v) = v {
+                anyhow::ensure!(
+                    v.is_finite() && (lo..=hi).contains(&v),
+                    "{flag} {v}: must be {lo}..={hi}"
+                );
+            }
+        }
+        anyhow::ensure!(
+            self.checks.fps_within.is_none() || self.baseline_s.is_some(),
+            "--check-fps-within compares with a baseline: give --baseline-s too"
+        );
+        if self.checks.memory_growth.is_some() || self.checks.creep.is_some() {
+            let windows = self.windows();
+            anyhow::ensure!(
+                windows >= 3,
+                "--check-memory-growth/--check-creep compare windows of the run, but --seconds {} / --window-s {} makes {windows}; make --window-s at most a third of --seconds",
+                self.seconds,
+                self.window_s
+            );
+        }
+        self.checks.validate()
+    }
+
+    /// Windows the measured run is cut into: equal parts of about `window_s`.
+    pub fn windows(&self) -> usize {
+        ((self.seconds / self.window_s).round() as usize).max(1)
+    }
+
+    /// Throttled sessions of a point of `sessions` sessions (the first ones).
+    fn throttled_of(&self, sessions: usize) -> usize {
+        if self.throttle_kbps.is_some() {
+            self.throttled.min(sessions)
+        } else {
+            0
+        }
     }
 
     /// Frame size of session `i` of a point: the sizes in turn.
@@ -238,8 +373,10 @@ impl LoadgenConfig {
             views: (self.layout == Layout::Split).then_some(self.split_views),
             quality: Some(self.quality),
             eye_distance_m: None,
+            codec: Some(self.codec),
+            max_kbps: self.max_kbps,
+            raw_every: self.raw_every,
             token: self.token.clone(),
-            ..Hello::default()
         }
     }
 }
@@ -300,8 +437,26 @@ pub struct ViewerStats {
     pub header_render_ms: Option<f64>,
     /// Mean compose + encode time the frame headers report, ms.
     pub header_encode_ms: Option<f64>,
-    /// Frames whose header or JPEG did not match the session (should be 0).
+    /// Frames whose header or payload did not match the session (should be 0).
     pub bad_frames: u64,
+    /// Whether this viewer read its socket at `--throttle-kbps`.
+    pub throttled: bool,
+    /// Mean encoded payload per frame (header and raw frames excluded), bytes.
+    pub encoded_bytes_per_frame: f64,
+    /// Key frames received (every JPEG; H.264 IDRs).
+    pub key_frames: u64,
+    /// Raw (debugging) frames received; not counted in frames, fps or bytes.
+    pub raw_frames: u64,
+    /// Encoded frames that did not decode (`--raw-every` only; each asked for a key frame).
+    pub decode_errors: u64,
+    /// PSNR of the encoded frames against the raw ones (`--raw-every` only).
+    pub quality: Option<Quality>,
+    /// Sessions this viewer opened during the whole point (more than 1 with churn).
+    pub sessions_opened: u64,
+    /// Failed attempts to reopen a churned session.
+    pub reopen_failures: u64,
+    /// Welcomes with `reason: bandwidth`: the server changed the frame size.
+    pub bandwidth_welcomes: u64,
     /// Error messages the server sent (should be none).
     pub server_errors: Vec<String>,
     /// Why the session ended before the window did (should be `None`).
@@ -343,6 +498,117 @@ pub struct PointSummary {
     pub viewers_ended_early: usize,
     /// Frames that did not match their session, all viewers.
     pub bad_frames: u64,
+    /// Mean encoded payload per frame over every viewer's frames (raw excluded), bytes.
+    pub encoded_bytes_per_frame: f64,
+    /// Key frames received, all viewers.
+    pub key_frames: u64,
+    /// Frames that did not decode, all viewers (`--raw-every`).
+    pub decode_errors: u64,
+    /// PSNR over every viewer's compared frames (`--raw-every`).
+    pub quality: Option<Quality>,
+}
+
+/// PSNR of the encoded frames against the raw frames of the same frame number.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Quality {
+    /// Frames compared.
+    pub compared: usize,
+    /// Mean PSNR, dB (identical pictures count as [`quality::PSNR_CAP_DB`]).
+    pub psnr_mean_db: f64,
+    /// Lowest PSNR, dB.
+    pub psnr_min_db: f64,
+}
+
+/// Which viewers a class holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewerClass {
+    /// Viewers reading their socket as fast as frames come.
+    Unthrottled,
+    /// Viewers reading at `--throttle-kbps`.
+    Throttled,
+}
+
+impl ViewerClass {
+    /// The class's name in reports.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ViewerClass::Unthrottled => "unthrottled",
+            ViewerClass::Throttled => "throttled",
+        }
+    }
+}
+
+/// One window of the measured run, over the viewers of one class.
+#[derive(Debug, Clone, Serialize)]
+pub struct WindowStats {
+    /// Start, seconds into the measured run.
+    pub start_s: f64,
+    /// End, seconds.
+    pub end_s: f64,
+    /// Mean of the viewers' fps in the window.
+    pub fps_mean: f64,
+    /// 95th percentile pose-to-frame latency over the window's samples, ms.
+    pub latency_p95_ms: Option<f64>,
+    /// Latency samples in the window.
+    pub latency_samples: usize,
+}
+
+/// The viewers of one class within a point.
+#[derive(Debug, Clone, Serialize)]
+pub struct ClassResult {
+    /// Throttled or not.
+    pub class: ViewerClass,
+    /// Sessions of the class.
+    pub sessions: usize,
+    /// The rate they read at, kbit/s (throttled class).
+    pub throttle_kbps: Option<u32>,
+    /// Over the whole measured window.
+    pub summary: PointSummary,
+    /// Per `--window-s` window.
+    pub windows: Vec<WindowStats>,
+}
+
+/// The server's memory over one window of the measured run.
+#[derive(Debug, Clone, Serialize)]
+pub struct ServerWindow {
+    /// Start, seconds into the measured run.
+    pub start_s: f64,
+    /// End, seconds.
+    pub end_s: f64,
+    /// Largest `fogcast_resident_memory_bytes` scraped in the window (once a second), MiB.
+    pub resident_memory_mib: Option<f64>,
+}
+
+/// The baseline phase: only the unthrottled viewers, before the throttled ones join.
+#[derive(Debug, Clone, Serialize)]
+pub struct Baseline {
+    /// Length, seconds.
+    pub seconds: f64,
+    /// Sessions measured (the unthrottled ones).
+    pub sessions: usize,
+    /// Their numbers.
+    pub summary: PointSummary,
+}
+
+/// Sessions loadgen opened against what the server counted.
+#[derive(Debug, Clone, Serialize)]
+pub struct SessionAccounting {
+    /// Sessions loadgen opened (welcomes received), churn included.
+    pub opened_by_loadgen: u64,
+    /// Failed reopen attempts (not sessions).
+    pub reopen_failures: u64,
+    /// Growth of `fogcast_sessions_total` from before the first hello to after the
+    /// server let the last session go.
+    pub server_opened: u64,
+    /// Growth of `fogcast_sessions_closed_total`, when the server has it.
+    pub server_closed: Option<u64>,
+    /// `fogcast_sessions` before the point.
+    pub open_before: u64,
+    /// `fogcast_sessions` after the point.
+    pub open_after: u64,
+    /// Every session opened is one the server counted, and it closed them all.
+    pub accounted: bool,
 }
 
 /// The server's side of a sweep point: `/metrics` deltas over the measured window.
@@ -433,6 +699,14 @@ pub struct PointResult {
     pub sizes: Vec<SizeResult>,
     /// The server's numbers.
     pub server: ServerStats,
+    /// Unthrottled and throttled viewers apart (those that had viewers), with windows.
+    pub classes: Vec<ClassResult>,
+    /// The server's memory per window.
+    pub server_windows: Vec<ServerWindow>,
+    /// The baseline phase (`--baseline-s`).
+    pub baseline: Option<Baseline>,
+    /// Sessions opened and closed, loadgen's count against the server's.
+    pub sessions_accounting: SessionAccounting,
     /// Each viewer.
     pub per_viewer: Vec<ViewerStats>,
 }
@@ -457,6 +731,15 @@ pub struct LoadgenReport {
     pub duration_s: f64,
     /// One per sweep point, in the order run.
     pub points: Vec<PointResult>,
+    /// The `--check-*` results (empty without checks).
+    pub checks: Vec<CheckResult>,
+}
+
+impl LoadgenReport {
+    /// The checks that failed.
+    pub fn failed_checks(&self) -> Vec<&CheckResult> {
+        self.checks.iter().filter(|c| !c.passed).collect()
+    }
 }
 
 /// Longest wait for the server to let the previous point's sessions go.
@@ -494,7 +777,7 @@ pub async fn run(
     }
     let paths = Arc::new(paths);
     progress(&format!(
-        "loadgen: {} — scene {:?}, up to {} views; sweep {:?} views, {} s each after {} s warm-up, poses at {} Hz, {} {:?} q{}",
+        "loadgen: {} — scene {:?}, up to {} views; sweep {:?} views, {} s each after {} s warm-up, poses at {} Hz, {} {:?} {} q{}{}",
         config.url,
         health.scene,
         health.max_viewers,
@@ -504,7 +787,9 @@ pub async fn run(
         config.pose_hz,
         size_list(&config.sizes),
         config.layout,
-        config.quality
+        config.codec.as_str(),
+        config.quality,
+        streaming_summary(config)
     ));
     let mut points = Vec::new();
     for &n in &config.viewers {
@@ -521,9 +806,191 @@ pub async fn run(
         camera_paths: paths.describe(),
         machine: machine(),
         duration_s: started.elapsed().as_secs_f64(),
+        checks: checks::evaluate(&config.checks, &points),
         points,
     })
 }
+
+/// A viewer task of a point and what the coordinator needs of it.
+struct Running {
+    index: usize,
+    session: u64,
+    views: u32,
+    live: Arc<Live>,
+    task: tokio::task::JoinHandle<ViewerRecord>,
+}
+
+/// What every viewer of a point shares.
+struct PointContext<'a> {
+    config: &'a LoadgenConfig,
+    target: &'a Target,
+    paths: &'a Arc<Paths>,
+    sessions: usize,
+    throttled: usize,
+    size_of: Vec<FrameSize>,
+    epoch: Instant,
+    stop: watch::Receiver<bool>,
+}
+
+impl PointContext<'_> {
+    /// Opens the sessions `indices` (hello → welcome, one after the other) and starts
+    /// their viewers.
+    async fn launch(
+        &self,
+        indices: impl Iterator<Item = usize>,
+        slots_per_session: &mut Option<usize>,
+    ) -> anyhow::Result<Vec<Running>> {
+        let c = self.config;
+        let mut opened: Vec<(usize, Ws, Welcome)> = Vec::new();
+        for i in indices {
+            let size = self.size_of[i];
+            let throttle = (i < self.throttled).then_some(c.throttle_kbps).flatten();
+            let (ws, welcome) = client::open(self.target, &c.hello(size), throttle)
+                .await
+                .with_context(|| format!("viewer {i} of {} ({size})", self.sessions))?;
+            opened.push((i, ws, welcome));
+        }
+        let mut running = Vec::with_capacity(opened.len());
+        for (i, ws, welcome) in opened {
+            let slots = *slots_per_session.get_or_insert(welcome.poses.len().max(1));
+            let live = Arc::new(Live::default());
+            let flight = Flight {
+                paths: self.paths.clone(),
+                first_slot: i * slots,
+                slots: self.sessions * slots,
+                pose_hz: c.pose_hz,
+                epoch: self.epoch,
+            };
+            // Staggered: viewer i of n first churns (i + 1) / n of a period in.
+            let churn = c.churn_s.map(|s| {
+                let period = Duration::from_secs_f64(s);
+                (
+                    period.mul_f64((i + 1) as f64 / self.sessions as f64),
+                    period,
+                )
+            });
+            let behaviour = Behaviour {
+                target: self.target.clone(),
+                hello: c.hello(self.size_of[i]),
+                throttle_kbps: (i < self.throttled).then_some(c.throttle_kbps).flatten(),
+                ack: c.ack,
+                measure_quality: c.raw_every.is_some(),
+                churn,
+            };
+            running.push(Running {
+                index: i,
+                session: welcome.session,
+                views: welcome.views,
+                live: live.clone(),
+                task: tokio::spawn(client::stream(
+                    ws,
+                    welcome,
+                    flight,
+                    behaviour,
+                    live,
+                    self.stop.clone(),
+                )),
+            });
+        }
+        Ok(running)
+    }
+}
+
+/// Waits until every viewer of `running` has a frame; the error names who ended or waits.
+async fn wait_first_frames(running: &[Running], timeout_s: f64) -> anyhow::Result<()> {
+    let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
+    loop {
+        if let Some((i, why)) = running
+            .iter()
+            .find_map(|r| Some((r.index, r.live.ended()?)))
+        {
+            anyhow::bail!("viewer {i} ended before its first frames: {why}");
+        }
+        if running.iter().all(|r| r.live.frames.load(Relaxed) > 0) {
+            return Ok(());
+        }
+        if Instant::now() > deadline {
+            let waiting: Vec<usize> = running
+                .iter()
+                .filter(|r| r.live.frames.load(Relaxed) == 0)
+                .map(|r| r.index)
+                .collect();
+            anyhow::bail!(
+                "viewers {waiting:?} got no frame within {timeout_s} s (--first-frame-timeout)"
+            );
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// One measured stretch: its ends, `/metrics` at both, and the server's resident memory
+/// scraped once a second in between.
+struct Measured {
+    t0: Instant,
+    t1: Instant,
+    before: scrape::Scrape,
+    after: scrape::Scrape,
+    rss_bytes: Vec<(Instant, f64)>,
+}
+
+/// Measures `seconds`, printing the frames per viewer of each second.
+async fn measure(
+    target: &Target,
+    running: &[Running],
+    seconds: f64,
+    label: &str,
+    progress: &(dyn Fn(&str) + Sync),
+) -> anyhow::Result<Measured> {
+    let before = scrape::metrics(&target.authority).await?;
+    let t0 = Instant::now();
+    let mut rss_bytes = vec![(t0, before.get(RSS, ""))];
+    let window = Duration::from_secs_f64(seconds);
+    let mut last: Vec<u64> = running
+        .iter()
+        .map(|r| r.live.frames.load(Relaxed))
+        .collect();
+    let mut second = 0;
+    while t0.elapsed() < window {
+        let next = t0 + Duration::from_secs(second + 1);
+        let wake = next.min(t0 + window);
+        tokio::time::sleep_until(wake.into()).await;
+        second += 1;
+        let now: Vec<u64> = running
+            .iter()
+            .map(|r| r.live.frames.load(Relaxed))
+            .collect();
+        let mut got: Vec<u64> = now.iter().zip(&last).map(|(a, b)| a - b).collect();
+        got.sort_unstable();
+        last = now;
+        if t0.elapsed() < window {
+            let m = scrape::metrics(&target.authority).await?;
+            rss_bytes.push((m.at, m.get(RSS, "")));
+        }
+        progress(&format!(
+            "loadgen: {label}: {:>4.0} s  frames in the last second per viewer: min {} median {} max {}",
+            t0.elapsed().as_secs_f64(),
+            got[0],
+            got[got.len() / 2],
+            got[got.len() - 1]
+        ));
+    }
+    let t1 = Instant::now();
+    let after = scrape::metrics(&target.authority).await?;
+    rss_bytes.push((after.at, after.get(RSS, "")));
+    Ok(Measured {
+        t0,
+        t1,
+        before,
+        after,
+        rss_bytes,
+    })
+}
+
+/// The server's resident memory gauge.
+const RSS: &str = "fogcast_resident_memory_bytes";
+/// Counter of sessions the server opened, and (when the server has it) closed.
+const SESSIONS_OPENED: &str = "fogcast_sessions_total";
+const SESSIONS_CLOSED: &str = "fogcast_sessions_closed_total";
 
 async fn run_point(
     config: &LoadgenConfig,
@@ -534,128 +1001,145 @@ async fn run_point(
 ) -> anyhow::Result<PointResult> {
     let per = config.views_per_session();
     let sessions = views / per;
-    let baseline = scrape::metrics(&target.authority)
-        .await?
-        .get("fogcast_sessions", "");
+    let throttled = config.throttled_of(sessions);
+    let start = scrape::metrics(&target.authority).await?;
+    let open_before = start.get("fogcast_sessions", "");
     let size_of: Vec<FrameSize> = (0..sessions).map(|i| config.size_of_session(i)).collect();
     progress(&format!(
-        "loadgen: {views} views: opening {sessions} sessions ({})",
-        sessions_per_size(&config.sizes, &size_of)
+        "loadgen: {views} views: opening {sessions} sessions ({}){}",
+        sessions_per_size(&config.sizes, &size_of),
+        match config.throttle_kbps {
+            Some(k) if throttled > 0 => format!(", the first {throttled} reading at {k} kbit/s"),
+            _ => String::new(),
+        }
     ));
-    let opened_at = Instant::now();
-    let mut opened = Vec::with_capacity(sessions);
-    for (i, size) in size_of.iter().enumerate() {
-        let (ws, welcome) = client::open(target, &config.hello(*size))
-            .await
-            .with_context(|| format!("viewer {i} of {sessions} ({size})"))?;
-        opened.push((ws, welcome));
-    }
-    let slots_per_session = opened.first().map_or(1, |(_, w)| w.poses.len());
     let (stop_tx, stop_rx) = watch::channel(false);
-    let epoch = Instant::now();
-    let mut tasks = Vec::with_capacity(sessions);
-    let mut lives = Vec::with_capacity(sessions);
-    let mut meta = Vec::with_capacity(sessions);
-    for (i, (ws, welcome)) in opened.into_iter().enumerate() {
-        let live = Arc::new(Live::default());
-        let flight = Flight {
-            paths: paths.clone(),
-            first_slot: i * slots_per_session,
-            slots: sessions * slots_per_session,
-            pose_hz: config.pose_hz,
-            epoch,
-        };
-        meta.push((welcome.session, welcome.views));
-        lives.push(live.clone());
-        tasks.push(tokio::spawn(client::stream(
-            ws,
-            welcome,
-            flight,
-            live,
-            stop_rx.clone(),
-        )));
-    }
     // Stops the viewers whatever happens below (an error, a timeout).
     let _stop_guard = StopOnDrop(stop_tx.clone());
+    let ctx = PointContext {
+        config,
+        target,
+        paths,
+        sessions,
+        throttled,
+        size_of: size_of.clone(),
+        epoch: Instant::now(),
+        stop: stop_rx,
+    };
+    let mut slots = None;
+    let opened_at = Instant::now();
+    let label = format!("{views} views");
 
-    let deadline = opened_at + Duration::from_secs_f64(config.first_frame_timeout_s);
-    loop {
-        if let Some((i, why)) = lives
-            .iter()
-            .enumerate()
-            .find_map(|(i, l)| Some((i, l.ended()?)))
-        {
-            anyhow::bail!("viewer {i} ended before its first frames: {why}");
-        }
-        if lives.iter().all(|l| l.frames.load(Relaxed) > 0) {
-            break;
-        }
-        if Instant::now() > deadline {
-            let waiting: Vec<usize> = (0..sessions)
-                .filter(|&i| lives[i].frames.load(Relaxed) == 0)
-                .collect();
-            anyhow::bail!(
-                "viewers {waiting:?} got no frame within {} s (--first-frame-timeout)",
-                config.first_frame_timeout_s
-            );
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    // With a baseline the unthrottled viewers start alone; else everyone at once.
+    let first_phase: Vec<usize> = if config.baseline_s.is_some() {
+        (throttled..sessions).collect()
+    } else {
+        (0..sessions).collect()
+    };
+    let mut running = ctx.launch(first_phase.iter().copied(), &mut slots).await?;
+    wait_first_frames(&running, config.first_frame_timeout_s).await?;
     let first_frames_s = opened_at.elapsed().as_secs_f64();
     progress(&format!(
-        "loadgen: {views} views: every viewer has frames after {first_frames_s:.1} s; warming up {} s",
+        "loadgen: {label}: every viewer has frames after {first_frames_s:.1} s; warming up {} s",
         config.warmup_s
     ));
     tokio::time::sleep(Duration::from_secs_f64(config.warmup_s)).await;
+    let baseline_window = match config.baseline_s {
+        Some(b) => {
+            let m = measure(target, &running, b, &format!("{label}, baseline"), progress).await?;
+            progress(&format!(
+                "loadgen: {label}: baseline done; the {throttled} throttled viewers join"
+            ));
+            running.extend(ctx.launch(0..throttled, &mut slots).await?);
+            running.sort_by_key(|r| r.index);
+            wait_first_frames(&running, config.first_frame_timeout_s).await?;
+            tokio::time::sleep(Duration::from_secs_f64(config.warmup_s)).await;
+            Some((m.t0, m.t1))
+        }
+        None => None,
+    };
 
-    let before = scrape::metrics(&target.authority).await?;
-    let t0 = Instant::now();
-    let window = Duration::from_secs_f64(config.seconds);
-    let mut last: Vec<u64> = lives.iter().map(|l| l.frames.load(Relaxed)).collect();
-    let mut second = 0;
-    while t0.elapsed() < window {
-        let next = t0 + Duration::from_secs(second + 1);
-        let wake = next.min(t0 + window);
-        tokio::time::sleep_until(wake.into()).await;
-        second += 1;
-        let now: Vec<u64> = lives.iter().map(|l| l.frames.load(Relaxed)).collect();
-        let mut got: Vec<u64> = now.iter().zip(&last).map(|(a, b)| a - b).collect();
-        got.sort_unstable();
-        last = now;
-        progress(&format!(
-            "loadgen: {views} views: {:>4.0} s  frames in the last second per viewer: min {} median {} max {}",
-            t0.elapsed().as_secs_f64(),
-            got[0],
-            got[got.len() / 2],
-            got[got.len() - 1]
-        ));
-    }
-    let t1 = Instant::now();
-    let after = scrape::metrics(&target.authority).await?;
+    let m = measure(target, &running, config.seconds, &label, progress).await?;
+    let (t0, t1) = (m.t0, m.t1);
     let load_average_1m = crate::report::load_average();
 
     let _ = stop_tx.send(true);
     let mut per_viewer = Vec::with_capacity(sessions);
     let mut latencies = Vec::with_capacity(sessions);
-    for (i, ((task, live), (session, views_of))) in
-        tasks.into_iter().zip(&lives).zip(meta).enumerate()
-    {
-        let rec = task.await.context("a viewer task failed")?;
+    let mut records = Vec::with_capacity(sessions);
+    for r in running {
+        let rec = r.task.await.context("a viewer task failed")?;
         latencies.push(stats::latencies(&rec, t0, t1));
-        per_viewer.push(stats::viewer(
-            i,
-            session,
-            (views_of, size_of[i]),
+        let mut v = stats::viewer(
+            r.index,
+            r.session,
+            (r.views, size_of[r.index]),
             &rec,
             (t0, t1),
-            live.ended(),
-        ));
+            r.live.ended(),
+        );
+        v.throttled = r.index < throttled;
+        per_viewer.push(v);
+        records.push(rec);
     }
     let summary = stats::summary(&per_viewer, latencies.concat());
     let sizes = stats::per_size(&config.sizes, &per_viewer, &latencies);
-    let server = scrape::server_stats(&before, &after);
+    let server = scrape::server_stats(&m.before, &m.after);
+    let windows = config.windows();
+    let classes: Vec<ClassResult> = [ViewerClass::Unthrottled, ViewerClass::Throttled]
+        .into_iter()
+        .filter_map(|class| {
+            let of: Vec<usize> = (0..per_viewer.len())
+                .filter(|&i| per_viewer[i].throttled == (class == ViewerClass::Throttled))
+                .collect();
+            if of.is_empty() {
+                return None;
+            }
+            let stats: Vec<ViewerStats> = of.iter().map(|&i| per_viewer[i].clone()).collect();
+            let pooled = of
+                .iter()
+                .flat_map(|&i| latencies[i].iter().copied())
+                .collect();
+            let recs: Vec<&ViewerRecord> = of.iter().map(|&i| &records[i]).collect();
+            Some(ClassResult {
+                class,
+                sessions: of.len(),
+                throttle_kbps: config
+                    .throttle_kbps
+                    .filter(|_| class == ViewerClass::Throttled),
+                summary: stats::summary(&stats, pooled),
+                windows: stats::windows(&recs, (t0, t1), windows),
+            })
+        })
+        .collect();
+    let server_windows = stats::server_windows(&m.rss_bytes, (t0, t1), windows);
+    let baseline = baseline_window.map(|(b0, b1)| {
+        let unthrottled: Vec<usize> = (throttled..sessions).collect();
+        let stats: Vec<ViewerStats> = unthrottled
+            .iter()
+            .map(|&i| {
+                stats::viewer(
+                    i,
+                    per_viewer[i].session,
+                    (per_viewer[i].views, size_of[i]),
+                    &records[i],
+                    (b0, b1),
+                    None,
+                )
+            })
+            .collect();
+        let pooled = unthrottled
+            .iter()
+            .flat_map(|&i| stats::latencies(&records[i], b0, b1))
+            .collect();
+        Baseline {
+            seconds: b1.duration_since(b0).as_secs_f64(),
+            sessions: unthrottled.len(),
+            summary: stats::summary(&stats, pooled),
+        }
+    });
     progress(&format!(
-        "loadgen: {views} views: {}, server {:.1} fps, {:.1} render calls and {:.0} grid rays per frame{}",
+        "loadgen: {label}: {}, server {:.1} fps, {:.1} render calls and {:.0} grid rays per frame{}",
         describe(&summary),
         server.fps,
         server.render_calls_per_frame,
@@ -669,32 +1153,53 @@ async fn run_point(
     if sizes.len() > 1 {
         for s in &sizes {
             progress(&format!(
-                "loadgen: {views} views:   {} ({}): {}",
+                "loadgen: {label}:   {} ({}): {}",
                 s.size,
                 sessions_count(s.sessions),
                 describe(&s.summary)
             ));
         }
     }
+    if classes.len() > 1 || throttled > 0 {
+        for c in &classes {
+            progress(&format!(
+                "loadgen: {label}:   {} ({}): {}",
+                c.class.as_str(),
+                sessions_count(c.sessions),
+                describe(&c.summary)
+            ));
+        }
+    }
+    if let Some(q) = summary.quality {
+        progress(&format!(
+            "loadgen: {label}: {} PSNR mean {:.2} dB, min {:.2} dB over {} frames; {:.0} bytes per encoded frame",
+            config.codec.as_str(),
+            q.psnr_mean_db,
+            q.psnr_min_db,
+            q.compared,
+            summary.encoded_bytes_per_frame
+        ));
+    }
 
     // Let the server release the sessions before the next point asks for views.
     let drained = tokio::time::timeout(DRAIN_TIMEOUT, async {
         loop {
             match scrape::metrics(&target.authority).await {
-                Ok(m) if m.get("fogcast_sessions", "") <= baseline => return Ok(()),
+                Ok(m) if m.get("fogcast_sessions", "") <= open_before => return Ok(m),
                 Ok(_) => tokio::time::sleep(Duration::from_millis(50)).await,
                 Err(e) => return Err(e),
             }
         }
     })
     .await;
-    match drained {
+    let end = match drained {
         Ok(r) => r?,
         Err(_) => anyhow::bail!(
             "the server still had sessions {} s after the viewers left",
             DRAIN_TIMEOUT.as_secs()
         ),
-    }
+    };
+    let sessions_accounting = account_sessions(&per_viewer, &start, &end);
     Ok(PointResult {
         viewers: views,
         sessions,
@@ -704,8 +1209,56 @@ async fn run_point(
         summary,
         sizes,
         server,
+        classes,
+        server_windows,
+        baseline,
+        sessions_accounting,
         per_viewer,
     })
+}
+
+/// Sessions loadgen opened against the server's counters from `start` to `end`.
+fn account_sessions(
+    viewers: &[ViewerStats],
+    start: &scrape::Scrape,
+    end: &scrape::Scrape,
+) -> SessionAccounting {
+    let delta = |name: &str| (end.get(name, "") - start.get(name, "")).max(0.0) as u64;
+    let opened_by_loadgen = viewers.iter().map(|v| v.sessions_opened).sum();
+    let server_opened = delta(SESSIONS_OPENED);
+    let server_closed = (end.has(SESSIONS_CLOSED)).then(|| delta(SESSIONS_CLOSED));
+    let open_before = start.get("fogcast_sessions", "") as u64;
+    let open_after = end.get("fogcast_sessions", "") as u64;
+    SessionAccounting {
+        opened_by_loadgen,
+        reopen_failures: viewers.iter().map(|v| v.reopen_failures).sum(),
+        server_opened,
+        server_closed,
+        open_before,
+        open_after,
+        accounted: server_opened == opened_by_loadgen
+            && open_after <= open_before
+            && server_closed.is_none_or(|c| c == opened_by_loadgen),
+    }
+}
+
+/// ", h264, acks, raw every 5, 1 viewer at 1000 kbit/s, …" for the progress line.
+fn streaming_summary(c: &LoadgenConfig) -> String {
+    let mut parts = vec![if c.ack { "acks" } else { "no acks" }.to_string()];
+    if let Some(n) = c.raw_every {
+        parts.push(format!("PSNR against a raw frame every {n}"));
+    }
+    if let Some(k) = c.throttle_kbps {
+        parts.push(format!("{} viewer(s) per point at {k} kbit/s", c.throttled));
+    }
+    if let Some(b) = c.baseline_s {
+        parts.push(format!("{b} s baseline"));
+    }
+    if let Some(s) = c.churn_s {
+        parts.push(format!("sessions reopened every {s} s"));
+    }
+    parts.push(format!("{} window(s)", c.windows()));
+    format!(", {}", parts.join(", "))
 }
 
 /// "fps per viewer (min), latency percentiles, bandwidth per viewer" of a summary.
