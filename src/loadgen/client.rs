@@ -9,8 +9,8 @@ use super::paths::Paths;
 use super::quality::{payload_looks_valid, psnr, StreamDecoder};
 use super::throttle::Throttled;
 use crate::protocol::{
-    clip, Ack, ClientMessage, FrameCodec, FrameHeader, Hello, PoseUpdate, ServerMessage, ViewPose,
-    Welcome,
+    clip, Ack, ClientMessage, ErrorCode, FrameCodec, FrameHeader, Hello, PoseUpdate, ServerMessage,
+    ViewPose, Welcome,
 };
 use anyhow::Context as _;
 use futures_util::{SinkExt as _, StreamExt as _};
@@ -205,6 +205,9 @@ pub(crate) struct ViewerRecord {
     pub(crate) last_reopen_error: Option<String>,
     /// Welcomes with `reason: bandwidth` (the server changed the frame size).
     pub(crate) bandwidth_welcomes: u64,
+    /// The server answered an ack with `unknown_type` (a server from before acks): this
+    /// viewer stopped acking.
+    pub(crate) acks_refused: bool,
 }
 
 /// Where one viewer flies.
@@ -406,7 +409,7 @@ async fn session(
                                 header,
                             });
                             live.frames.fetch_add(1, Relaxed);
-                            if b.ack {
+                            if b.ack && !rec.acks_refused {
                                 reply = Some(ClientMessage::Ack(Ack { frame: header.frame }));
                             }
                             if b.measure_quality {
@@ -440,6 +443,11 @@ async fn session(
                     }
                 }
                 Some(Ok(Message::Text(t))) => match serde_json::from_str::<ServerMessage>(&t) {
+                    Ok(ServerMessage::Error(e)) if e.code == ErrorCode::UnknownType && e.message.contains("\"ack\"") => {
+                        // An older server: carry on without acks rather than be closed
+                        // for too many errors.
+                        rec.acks_refused = true;
+                    }
                     Ok(ServerMessage::Error(e)) => rec.server_errors.push(format!("{}: {}", e.code.as_str(), e.message)),
                     Ok(ServerMessage::Welcome(w)) => {
                         if w.reason == crate::protocol::WelcomeReason::Bandwidth {

@@ -457,6 +457,8 @@ pub struct ViewerStats {
     pub reopen_failures: u64,
     /// Welcomes with `reason: bandwidth`: the server changed the frame size.
     pub bandwidth_welcomes: u64,
+    /// The server did not know acks (`unknown_type`), so this viewer stopped sending them.
+    pub acks_refused: bool,
     /// Error messages the server sent (should be none).
     pub server_errors: Vec<String>,
     /// Why the session ended before the window did (should be `None`).

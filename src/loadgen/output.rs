@@ -381,7 +381,11 @@ fn streaming_sections(r: &LoadgenReport) -> String {
     let mut md = format!(
         "\nCodec {}, acks {}{}{}.\n",
         c.codec.as_str(),
-        if c.ack { "on" } else { "off" },
+        match (c.ack, refused(r)) {
+            (false, _) => "off",
+            (true, false) => "on",
+            (true, true) => "on (but the server did not know them: `unknown_type`; those viewers stopped acking)",
+        },
         c.max_kbps
             .map_or_else(String::new, |k| format!(", at most {k} kbit/s")),
         c.churn_s.map_or_else(String::new, |s| format!(
@@ -579,6 +583,13 @@ fn streaming_sections(r: &LoadgenReport) -> String {
         }
     }
     md
+}
+
+/// Whether some viewer's acks were refused by a server from before acks.
+fn refused(r: &LoadgenReport) -> bool {
+    r.points
+        .iter()
+        .any(|p| p.per_viewer.iter().any(|v| v.acks_refused))
 }
 
 /// Writes the plots; returns their file names.

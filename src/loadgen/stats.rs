@@ -170,6 +170,7 @@ pub(crate) fn viewer(
         sessions_opened: rec.sessions_opened,
         reopen_failures: rec.reopen_failures,
         bandwidth_welcomes: rec.bandwidth_welcomes,
+        acks_refused: rec.acks_refused,
         server_errors: rec.server_errors.clone(),
         ended_early,
         served_throughout,

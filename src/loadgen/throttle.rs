@@ -10,9 +10,9 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::time::{Instant, Sleep};
 
-/// Largest read the bucket grants at once: 20 ms of the rate (at least one 1500-byte
+/// Largest read the bucket grants at once: 50 ms of the rate (at least one 1500-byte
 /// packet), so the bytes arrive evenly rather than in bursts.
-const BURST_S: f64 = 0.02;
+const BURST_S: f64 = 0.05;
 const MIN_BURST_BYTES: f64 = 1500.0;
 
 /// `inner`, its reads limited to a byte rate (or not at all). Hand it to
