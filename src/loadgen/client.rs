@@ -301,8 +301,16 @@ pub(crate) async fn stream(
                         break;
                     }
                 }
+                // On schedule, unless reopening took so long the slot has passed.
                 let period = behaviour.churn.map_or(Duration::MAX, |(_, p)| p);
-                next_churn = next_churn.and_then(|t| t.checked_add(period));
+                let now = Instant::now();
+                next_churn = next_churn.and_then(|t| t.checked_add(period)).map(|t| {
+                    if t < now {
+                        now + period
+                    } else {
+                        t
+                    }
+                });
             }
         }
     }
@@ -362,6 +370,9 @@ async fn session(
     rec: &mut ViewerRecord,
 ) -> SessionEnd {
     let mut decoder = StreamDecoder::default();
+    // After an H.264 decode error, the P frames until the requested key frame cannot
+    // decode either: they are not tried (nor counted as more errors).
+    let mut awaiting_key = false;
     // The raw frame sent right before its encoded frame: (frame number, RGBA pixels).
     let mut raw: Option<(u32, Vec<u8>)> = None;
     let churn = async {
@@ -412,7 +423,10 @@ async fn session(
                             if b.ack && !rec.acks_refused {
                                 reply = Some(ClientMessage::Ack(Ack { frame: header.frame }));
                             }
-                            if b.measure_quality {
+                            if header.key {
+                                awaiting_key = false;
+                            }
+                            if b.measure_quality && !awaiting_key {
                                 match decoder.decode(&header, payload) {
                                     Ok(Some(rgb)) => {
                                         if let Some((_, pixels)) = raw.take().filter(|(n, _)| *n == header.frame) {
@@ -426,6 +440,7 @@ async fn session(
                                         rec.decode_errors += 1;
                                         decoder.reset();
                                         if header.codec == FrameCodec::H264 {
+                                            awaiting_key = true;
                                             // Sent after the ack below, which is queued first.
                                             let ack = reply.take();
                                             if let Some(ack) = ack {
