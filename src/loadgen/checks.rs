@@ -111,9 +111,11 @@ pub(crate) fn evaluate(checks: &Checks, points: &[PointResult]) -> Vec<CheckResu
                     (
                         base > 0.0 && (fps - base).abs() <= within * base,
                         format!(
-                            "unthrottled {fps:.2} fps with the throttled viewers vs {base:.2} fps alone: {:+.1} % (allowed ±{:.1} %)",
+                            "unthrottled {fps:.2} fps with the throttled viewers vs {base:.2} fps alone: {:+.1} % (allowed ±{:.1} %); server render loop {:.1} fps, {:.1} alone",
                             if base > 0.0 { (fps / base - 1.0) * 100.0 } else { f64::NAN },
-                            within * 100.0
+                            within * 100.0,
+                            p.server.fps,
+                            b.server_fps
                         ),
                     )
                 }

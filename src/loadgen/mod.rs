@@ -587,6 +587,9 @@ pub struct ServerWindow {
 pub struct Baseline {
     /// Length, seconds.
     pub seconds: f64,
+    /// The server's render-loop fps meanwhile (on a CPU renderer the throttled viewers'
+    /// views slow it down too, whatever their links).
+    pub server_fps: f64,
     /// Sessions measured (the unthrottled ones).
     pub sessions: usize,
     /// Their numbers.
@@ -1056,7 +1059,7 @@ async fn run_point(
             running.sort_by_key(|r| r.index);
             wait_first_frames(&running, config.first_frame_timeout_s).await?;
             tokio::time::sleep(Duration::from_secs_f64(config.warmup_s)).await;
-            Some((m.t0, m.t1))
+            Some((m.t0, m.t1, scrape::server_stats(&m.before, &m.after).fps))
         }
         None => None,
     };
@@ -1115,7 +1118,7 @@ async fn run_point(
         })
         .collect();
     let server_windows = stats::server_windows(&m.rss_bytes, (t0, t1), windows);
-    let baseline = baseline_window.map(|(b0, b1)| {
+    let baseline = baseline_window.map(|(b0, b1, server_fps)| {
         let unthrottled: Vec<usize> = (throttled..sessions).collect();
         let stats: Vec<ViewerStats> = unthrottled
             .iter()
@@ -1136,6 +1139,7 @@ async fn run_point(
             .collect();
         Baseline {
             seconds: b1.duration_since(b0).as_secs_f64(),
+            server_fps,
             sessions: unthrottled.len(),
             summary: stats::summary(&stats, pooled),
         }
