@@ -2,13 +2,18 @@
 //! frames, finite ordered latency percentiles and bytes; the report files are written;
 //! a mixed sweep (three frame sizes at once) serves every size and reports each; an
 //! unreachable server, a refused hello and a sweep over the server's view limit give
-//! errors that say so. No timing assertions (DESIGN.md §7).
+//! errors that say so. The streaming scenario (issue 17): the throttle wrapper reads at
+//! its rate, PSNR follows its formula, and a short throttled + churning run passes the
+//! soak's checks. No timing assertions beyond the throttle's ±15 % (DESIGN.md §7).
 
 mod server_support;
 
-use fogcast::loadgen::{run, write_report, FrameSize, LoadgenConfig};
+use fogcast::loadgen::quality::{psnr, PSNR_CAP_DB};
+use fogcast::loadgen::{run, write_report, FrameSize, LoadgenConfig, Throttled};
 use fogcast::server::ServerConfig;
 use server_support::*;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
 
 fn config_for(addr: std::net::SocketAddr) -> LoadgenConfig {
     LoadgenConfig {
@@ -76,7 +81,29 @@ async fn two_viewers_get_frames_latency_and_bytes() {
             "{who}: the timeline adds up to the frames"
         );
         assert!(v.header_render_ms.is_some_and(|ms| ms > 0.0), "{who}");
+        // JPEG: every frame a key frame; the payload is the frame less its 40-byte header.
+        assert_eq!(v.key_frames, v.frames, "{who}");
+        assert!(
+            (v.mean_frame_bytes - v.encoded_bytes_per_frame - 40.0).abs() < 1e-6,
+            "{who}: {} bytes per frame, {} encoded",
+            v.mean_frame_bytes,
+            v.encoded_bytes_per_frame
+        );
+        assert_eq!(
+            (v.raw_frames, v.sessions_opened, v.quality),
+            (0, 1, None),
+            "{who}"
+        );
+        assert!(!v.throttled, "{who}");
     }
+    let a = &p.sessions_accounting;
+    assert_eq!(
+        (a.opened_by_loadgen, a.server_opened, a.open_after),
+        (2, 2, 0),
+        "{a:?}"
+    );
+    assert!(a.accounted && report.checks.is_empty(), "{a:?}");
+    assert_eq!(p.classes.len(), 1, "unthrottled viewers only");
     let pooled = p.summary.latency.expect("pooled latency");
     assert!(pooled.p50_ms <= pooled.p95_ms && pooled.p95_ms <= pooled.p99_ms);
     assert_eq!(
@@ -260,4 +287,75 @@ async fn errors_name_the_problem() {
         "{msg}"
     );
     server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_throttle_reads_at_its_rate() {
+    // A sender that writes as fast as the socket takes it.
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let sender = tokio::spawn(async move {
+        while let Ok((mut s, _)) = listener.accept().await {
+            tokio::spawn(async move {
+                let chunk = vec![7u8; 64 * 1024];
+                while s.write_all(&chunk).await.is_ok() {}
+            });
+        }
+    });
+    const KBPS: u32 = 2000;
+    let tcp = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let mut slow = Throttled::new(tcp, Some(KBPS));
+    let mut buf = vec![0u8; 256 * 1024];
+    let started = Instant::now();
+    let mut bytes = 0usize;
+    while started.elapsed() < Duration::from_secs(2) {
+        bytes += slow.read(&mut buf).await.unwrap();
+    }
+    let kbps = bytes as f64 * 8.0 / 1000.0 / started.elapsed().as_secs_f64();
+    assert!(
+        (kbps - f64::from(KBPS)).abs() <= 0.15 * f64::from(KBPS),
+        "read {bytes} bytes at {kbps:.0} kbit/s through a {KBPS} kbit/s throttle"
+    );
+    // Without a rate the wrapper passes everything: the same sender gives far more.
+    let tcp = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let mut fast = Throttled::new(tcp, None);
+    let started = Instant::now();
+    let mut fast_bytes = 0usize;
+    while started.elapsed() < Duration::from_millis(300) {
+        fast_bytes += fast.read(&mut buf).await.unwrap();
+    }
+    let fast_kbps = fast_bytes as f64 * 8.0 / 1000.0 / started.elapsed().as_secs_f64();
+    assert!(
+        fast_kbps > 5.0 * f64::from(KBPS),
+        "unthrottled {fast_kbps:.0} kbit/s: the sender, not the throttle, set the rate"
+    );
+    sender.abort();
+}
+
+#[test]
+fn psnr_is_capped_for_identical_pictures_and_follows_the_formula_for_noise() {
+    let (w, h) = (32usize, 16usize);
+    let raw: Vec<u8> = (0..w * h)
+        .flat_map(|i| [100 + (i % 50) as u8, 90, 120 - (i % 30) as u8, 255])
+        .collect();
+    let same: Vec<u8> = raw
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    assert_eq!(psnr(&same, &raw), Some(PSNR_CAP_DB));
+    // ±8 on every channel, alternating: MSE 64, PSNR 10·log10(255²/64) = 30.07 dB.
+    let noisy: Vec<u8> = same
+        .iter()
+        .enumerate()
+        .map(|(i, v)| if i % 2 == 0 { v + 8 } else { v - 8 })
+        .collect();
+    let db = psnr(&noisy, &raw).unwrap();
+    let want = 10.0 * (255.0f64 * 255.0 / 64.0).log10();
+    assert!((db - want).abs() < 1e-9, "PSNR {db} dB, formula {want} dB");
+    assert!((want - 30.07).abs() < 0.01);
+    assert_eq!(
+        psnr(&noisy[..30], &raw),
+        None,
+        "different sizes are not compared"
+    );
 }
