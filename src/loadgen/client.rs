@@ -441,9 +441,8 @@ async fn session(
                                         decoder.reset();
                                         if header.codec == FrameCodec::H264 {
                                             awaiting_key = true;
-                                            // Sent after the ack below, which is queued first.
-                                            let ack = reply.take();
-                                            if let Some(ack) = ack {
+                                            // The ack goes out first, then the request.
+                                            if let Some(ack) = reply.take() {
                                                 if let Err(e) = ws.send(Message::text(ack.to_json())).await {
                                                     return SessionEnd::Lost(format!("sending an ack failed: {e}"));
                                                 }
