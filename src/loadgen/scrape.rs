@@ -210,7 +210,8 @@ pub(crate) fn server_stats(before: &Scrape, after: &Scrape) -> ServerStats {
         render_calls_per_frame: per(render_calls, frames),
         grid_rays_per_frame: per(grid_rays, frames),
         grid_rays_per_render_call: per(grid_rays, render_calls),
-        frames_encoded: d("fogcast_frames_encoded_total", "") as u64,
+        frames_encoded: (d("fogcast_frames_encoded_total", "codec=\"jpeg\"")
+            + d("fogcast_frames_encoded_total", "codec=\"h264\"")) as u64,
         frames_sent: d("fogcast_frames_sent_total", "") as u64,
         bytes_sent: d("fogcast_bytes_sent_total", "") as u64,
         dropped_client_slow: d("fogcast_frames_dropped_total", "reason=\"client_slow\"") as u64,

@@ -190,6 +190,9 @@ mod tests {
         out[4..6].copy_from_slice(&32u16.to_le_bytes());
         out.extend_from_slice(b"jpeg");
         let (h, rest) = FrameHeader::parse(&out).unwrap();
-        assert_eq!((h.codec, h.key, rest), (FrameCodec::Jpeg, true, &b"jpeg"[..]));
+        assert_eq!(
+            (h.codec, h.key, rest),
+            (FrameCodec::Jpeg, true, &b"jpeg"[..])
+        );
     }
 }

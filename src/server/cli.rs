@@ -42,6 +42,16 @@ pub struct ServeArgs {
     /// Token clients must send in their hello [default: none, open server].
     #[arg(long)]
     pub token: Option<String>,
+    /// Close sessions that send no pose for this many seconds, 0: never [default: 300].
+    #[arg(long)]
+    pub idle_timeout_s: Option<f64>,
+    /// Highest bitrate a session may get, kbit/s [default: 8000].
+    #[arg(long)]
+    pub max_kbps: Option<u32>,
+    /// Allow hellos with `raw_every` (uncompressed frame copies for measuring codec
+    /// quality; `fogcast loadgen --raw-every`).
+    #[arg(long)]
+    pub debug_raw_frames: bool,
     /// The renderer's settings (as in `fogcast render`).
     #[command(flatten)]
     pub settings: SettingsOverrides,
@@ -84,6 +94,16 @@ impl ServeArgs {
         }
         if let Some(v) = &self.token {
             c.token = Some(v.clone());
+        }
+        if let Some(v) = self.idle_timeout_s {
+            c.idle_timeout_s = v;
+        }
+        if let Some(v) = self.max_kbps {
+            c.max_kbps = v;
+            c.start_kbps = c.start_kbps.min(v);
+        }
+        if self.debug_raw_frames {
+            c.debug_raw_frames = true;
         }
         c.validate()?;
         Ok(c)

@@ -81,6 +81,23 @@ pub struct ServerConfig {
     /// GPU memory of all views' volumes and G-buffers together, MiB (the scene, grid
     /// and shadow maps come on top, once per view size); past it `over_budget`.
     pub max_view_memory_mib: u64,
+    /// Seconds a session may go without sending a pose before it is closed with `idle`
+    /// (0: never). Acks do not count: a forgotten tab still acks.
+    pub idle_timeout_s: f64,
+    /// Highest bitrate a session may get, kbit/s (the ceiling of a hello's `max_kbps`).
+    pub max_kbps: u32,
+    /// Lowest bitrate the adaptation goes to, kbit/s; below it the frame size is halved.
+    pub min_kbps: u32,
+    /// Bitrate a new H.264 stream starts at, kbit/s (then adapted).
+    pub start_kbps: u32,
+    /// Frames between H.264 key frames (besides those on join, configure and request).
+    pub gop_frames: u32,
+    /// Flow control, for clients that ack: most milliseconds of the client's delivered
+    /// rate kept in flight; a frame beyond it is skipped (latest frame wins).
+    pub max_queue_ms: f64,
+    /// Allow hellos with `raw_every` (uncompressed copies of frames, for measuring codec
+    /// quality). Off by default: raw frames are large.
+    pub debug_raw_frames: bool,
     /// Fault injection for tests: views of this width fail in the render loop.
     #[doc(hidden)]
     #[serde(skip)]
@@ -145,6 +162,13 @@ impl Default for ServerConfig {
             max_pixels_per_frame: 4 * 1920 * 1080,
             // Four 1920×1080 views hold 544 MiB.
             max_view_memory_mib: 1024,
+            idle_timeout_s: 300.0,
+            max_kbps: 8000,
+            min_kbps: 150,
+            start_kbps: 2000,
+            gop_frames: 60,
+            max_queue_ms: 150.0,
+            debug_raw_frames: false,
             fault: None,
         }
     }
@@ -266,6 +290,41 @@ impl ServerConfig {
             self.max_pixels_per_frame
         );
         anyhow::ensure!(
+            self.idle_timeout_s == 0.0
+                || (self.idle_timeout_s.is_finite()
+                    && (0.05..=86_400.0).contains(&self.idle_timeout_s)),
+            "idle_timeout_s {}: must be 0 (never) or 0.05..=86400 seconds",
+            self.idle_timeout_s
+        );
+        anyhow::ensure!(
+            (50..=1_000_000).contains(&self.min_kbps),
+            "min_kbps {}: must be 50..=1000000",
+            self.min_kbps
+        );
+        anyhow::ensure!(
+            (self.min_kbps..=1_000_000).contains(&self.max_kbps),
+            "max_kbps {}: must be min_kbps ({})..=1000000",
+            self.max_kbps,
+            self.min_kbps
+        );
+        anyhow::ensure!(
+            (self.min_kbps..=self.max_kbps).contains(&self.start_kbps),
+            "start_kbps {}: must be min_kbps..=max_kbps ({}..={})",
+            self.start_kbps,
+            self.min_kbps,
+            self.max_kbps
+        );
+        anyhow::ensure!(
+            (1..=3600).contains(&self.gop_frames),
+            "gop_frames {}: must be 1..=3600",
+            self.gop_frames
+        );
+        anyhow::ensure!(
+            self.max_queue_ms.is_finite() && (10.0..=10_000.0).contains(&self.max_queue_ms),
+            "max_queue_ms {}: must be 10..=10000",
+            self.max_queue_ms
+        );
+        anyhow::ensure!(
             self.encode_threads <= 256,
             "encode_threads {}: must be 0..=256",
             self.encode_threads
@@ -278,6 +337,9 @@ impl ServerConfig {
             max_width: self.max_width,
             max_height: self.max_height,
             default_quality: self.default_quality,
+            max_kbps: self.max_kbps,
+            min_kbps: self.min_kbps,
+            debug_raw_frames: self.debug_raw_frames,
         }
     }
 }

@@ -6,6 +6,7 @@
 use super::admission::{Pending, TokenBackoff};
 use super::budget::{Budget, Usage};
 use super::config::ServerConfig;
+use super::stream::StreamState;
 use super::telemetry::{DropReason, Telemetry};
 use super::validate::{cameras_for, CheckedPose, ProtocolError, SessionSpec};
 use crate::protocol::{ErrorCode, Layout};
@@ -18,13 +19,24 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::sync::Notify;
 
-/// One encoded frame: header + JPEG, ready to send.
+/// One encoded frame: header + payload, ready to send.
 #[derive(Debug, Clone)]
 pub(crate) struct EncodedFrame {
     pub(crate) bytes: Bytes,
+    /// Server frame number (what the client acks).
+    pub(crate) frame: u32,
+    /// The raw copy sent just before it (`raw_every`), if this frame has one.
+    pub(crate) raw: Option<Bytes>,
     /// The session spec it was rendered for (the writer sends only frames of the size
     /// the client was last told).
     pub(crate) spec: SessionSpec,
+}
+
+impl EncodedFrame {
+    /// Bytes held, raw copy included.
+    pub(crate) fn len(&self) -> usize {
+        self.bytes.len() + self.raw.as_ref().map_or(0, |r| r.len())
+    }
 }
 
 /// Latest-frame-wins mailbox between the encoders and one session's writer: holds at
@@ -46,9 +58,9 @@ impl FrameSlot {
 
     /// Stores `frame`; returns whether it replaced one the client had not taken.
     pub(crate) fn publish(&self, frame: EncodedFrame) -> bool {
-        let add = frame.bytes.len() as i64;
+        let add = frame.len() as i64;
         let old = lock(&self.frame).replace(frame);
-        let removed = old.as_ref().map_or(0, |f| f.bytes.len() as i64);
+        let removed = old.as_ref().map_or(0, |f| f.len() as i64);
         self.telemetry.slot_bytes.fetch_add(add - removed, Relaxed);
         self.ready.notify_one();
         old.is_some()
@@ -57,11 +69,14 @@ impl FrameSlot {
     pub(crate) fn take(&self) -> Option<EncodedFrame> {
         let f = lock(&self.frame).take();
         if let Some(f) = &f {
-            self.telemetry
-                .slot_bytes
-                .fetch_sub(f.bytes.len() as i64, Relaxed);
+            self.telemetry.slot_bytes.fetch_sub(f.len() as i64, Relaxed);
         }
         f
+    }
+
+    /// Whether a frame is waiting for the writer.
+    pub(crate) fn is_full(&self) -> bool {
+        lock(&self.frame).is_some()
     }
 
     /// Resolves when a frame has been published since the last call.
@@ -107,6 +122,8 @@ pub(crate) struct SessionShared {
     pub(crate) encoding: AtomicBool,
     pub(crate) dropped: AtomicU64,
     pub(crate) sent: AtomicU64,
+    /// Codec state, flow control and bitrate shared with the encoder and the writer.
+    pub(crate) stream: StreamState,
     /// Set once when the server cannot serve this session any more (a failed render);
     /// the writer then sends it as a fatal error and closes.
     failure: Mutex<Option<ProtocolError>>,
@@ -148,6 +165,8 @@ impl SessionShared {
         let spec = v.spec;
         v.place(spec, poses, origin);
         v.pose_seq = seq;
+        drop(v);
+        self.stream.touch_pose();
     }
 
     pub(crate) fn count_drop(&self, telemetry: &Telemetry, reason: DropReason) {
@@ -340,6 +359,7 @@ impl Hub {
             encoding: AtomicBool::new(false),
             dropped: AtomicU64::new(0),
             sent: AtomicU64::new(0),
+            stream: StreamState::new(self.config.start_kbps.min(spec.max_kbps), spec.quality),
             failure: Mutex::new(None),
             failed: Notify::new(),
         });
@@ -454,6 +474,7 @@ pub(crate) struct SessionGuard {
 impl Drop for SessionGuard {
     fn drop(&mut self) {
         lock(&self.hub.sessions).remove(&self.session.id);
+        self.hub.telemetry.sessions_closed.fetch_add(1, Relaxed);
         // Free the frame waiting for this client now rather than when the last
         // encoder job lets go of the session.
         self.session.slot.take();

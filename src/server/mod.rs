@@ -24,6 +24,7 @@ mod hub;
 mod listen;
 mod render_loop;
 mod session;
+mod stream;
 mod telemetry;
 mod validate;
 

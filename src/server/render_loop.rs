@@ -29,7 +29,7 @@ use super::hub::{Hub, SessionSnapshot};
 use super::telemetry::DropReason;
 use super::validate::ProtocolError;
 use crate::gpu::GpuContext;
-use crate::protocol::ErrorCode;
+use crate::protocol::{Codec, ErrorCode};
 use crate::render::{FrameTarget, Renderer, Settings, TargetView, TargetsOutput, ViewerId};
 use crate::scene::Bvh;
 use std::collections::BTreeMap;
@@ -294,12 +294,28 @@ impl RenderLoop {
         }
     }
 
+    /// Whether a session can take a frame now: its flow window is open (clients that
+    /// ack), and for H.264 its writer has taken the previous frame — an encoded access
+    /// unit must reach the decoder, so frames for a slow client are skipped here,
+    /// before encoding, not replaced after it.
+    fn wants_frame(&self, snap: &SessionSnapshot) -> bool {
+        let stream = &snap.session.stream;
+        stream.ready.load(Relaxed)
+            && !(snap.spec.codec == Codec::H264 && snap.session.slot.is_full())
+    }
+
     /// Hands each session its frame for encoding.
     fn deliver(&self, sessions: &[&SessionSnapshot], out: TargetsOutput) {
         self.hub.telemetry.record_render(&out.stats);
         let render_us = (out.stats.frame_ms * 1e3) as u32;
         let frame_no = self.frame as u32;
         for (snap, image) in sessions.iter().zip(out.images) {
+            if !self.wants_frame(snap) {
+                snap.session
+                    .count_drop(&self.hub.telemetry, DropReason::ClientSlow);
+                snap.session.stream.skipped.fetch_add(1, Relaxed);
+                continue;
+            }
             if snap.session.encoding.swap(true, AcqRel) {
                 snap.session
                     .count_drop(&self.hub.telemetry, DropReason::EncoderBusy);
@@ -328,7 +344,7 @@ impl RenderLoop {
                 if let Err(panic) = result {
                     // A panic in a rayon job would abort the process; this frame is
                     // dropped instead and the session's next one is encoded as usual.
-                    let what = format!("a JPEG encoder panicked: {}", panic_message(&*panic));
+                    let what = format!("an encoder panicked: {}", panic_message(&*panic));
                     tracing::error!(session = session.id, error = %what, "frame dropped");
                     hub.telemetry.encode_panics.fetch_add(1, Relaxed);
                     hub.record_failure(what);

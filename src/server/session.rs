@@ -5,11 +5,13 @@
 
 use super::hub::{layout_name, ConnectionGuard, Hub, SessionShared};
 use super::listen::Slot;
+use super::stream::{Flow, FlowConfig, Resize, MIN_ADAPTED_VIEW_PX, TICK};
 use super::telemetry::DropReason;
 use super::validate::{check_pose, parse_client_message, CheckedPose, ProtocolError, SessionSpec};
 use crate::protocol::{
-    clip, ClientMessage, ErrorCode, ErrorMessage, Hello, Limits, ServerMessage, Welcome,
-    FOV_RANGE_DEG, FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX, PROTOCOL_VERSION,
+    clip, ClientMessage, Codec, ErrorCode, ErrorMessage, Hello, Layout, Limits, ServerMessage,
+    Welcome, WelcomeReason, FOV_RANGE_DEG, FRAME_HEADER_BYTES, MAX_COORD_M, MIN_VIEW_PX,
+    PROTOCOL_VERSION,
 };
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
 use futures_util::stream::{SplitSink, SplitStream};
@@ -28,6 +30,8 @@ const ERROR_WINDOW: Duration = Duration::from_secs(10);
 /// Control messages (welcomes, errors) waiting for the writer. They are never dropped:
 /// a client that leaves this many replies unread is closed for flooding instead.
 const CONTROL_QUEUE: usize = 32;
+/// A sleep that never ends in practice (a disabled timer's placeholder).
+const FAR_FUTURE: Duration = Duration::from_secs(365 * 86_400);
 /// Configures a session may send in a burst (then `max_configures_per_s`).
 const CONFIGURE_BURST: f64 = 4.0;
 
@@ -236,7 +240,7 @@ pub(crate) async fn run(
     };
     let id = guard.session.id;
     tracing::info!(%peer, session = id, layout = layout_name(spec.layout), width = spec.width, height = spec.height, views = spec.views, "session opened");
-    let welcome = welcome(&hub, &guard.session);
+    let welcome = welcome(&hub, &guard.session, WelcomeReason::Hello);
     if sink.send(Message::Text(welcome.into())).await.is_err() {
         return;
     }
@@ -361,7 +365,7 @@ fn too_large(len: usize, max: usize) -> ProtocolError {
     )
 }
 
-fn welcome(hub: &Hub, session: &SessionShared) -> String {
+fn welcome(hub: &Hub, session: &SessionShared, reason: WelcomeReason) -> String {
     let v = session.view();
     let c = &hub.config;
     ServerMessage::Welcome(Welcome {
@@ -376,9 +380,9 @@ fn welcome(hub: &Hub, session: &SessionShared) -> String {
         view_height: v.spec.view_height,
         quality: v.spec.quality,
         eye_distance_m: v.spec.eye_distance_m,
-        codec: crate::protocol::Codec::Jpeg,
-        max_kbps: 0,
-        reason: crate::protocol::WelcomeReason::Hello,
+        codec: v.spec.codec,
+        max_kbps: v.spec.max_kbps,
+        reason,
         fps: c.fps,
         header_bytes: FRAME_HEADER_BYTES,
         poses: v
@@ -396,7 +400,7 @@ fn welcome(hub: &Hub, session: &SessionShared) -> String {
             max_views: c.max_views,
             max_coord_m: MAX_COORD_M,
             fov_y_deg: [FOV_RANGE_DEG.0, FOV_RANGE_DEG.1],
-            idle_timeout_s: 0.0,
+            idle_timeout_s: c.idle_timeout_s,
         },
     })
     .to_json()
@@ -413,14 +417,58 @@ async fn write_loop(
 ) -> &'static str {
     let stall = Duration::from_secs_f64(hub.config.stall_timeout_s);
     let frame_timeout = Duration::from_secs_f64(hub.config.frame_timeout_s);
+    let idle_timeout = Duration::from_secs_f64(hub.config.idle_timeout_s);
     let mut last_frame = tokio::time::Instant::now();
+    // What the client asked for (hello or configure); `announced` may be smaller while
+    // its link does not carry this.
+    let mut requested = announced;
+    let mut flow = Flow::new(
+        FlowConfig {
+            min_kbps: hub.config.min_kbps,
+            max_queue: Duration::from_secs_f64(hub.config.max_queue_ms / 1e3),
+        },
+        session.stream.target_kbps.load(Relaxed),
+        announced.max_kbps,
+        announced.quality,
+    );
+    let _target = TargetGauge::new(hub, flow.target_kbps());
     loop {
+        let now = Instant::now();
+        if flow.tick_due(now) {
+            flow.skipped(session.stream.skipped.swap(0, Relaxed));
+            let shrinkable = scaled(&requested, flow.shrink_level + 1, hub).is_some();
+            let resize = flow.tick(now, shrinkable);
+            _target.set(hub, flow.target_kbps());
+            session
+                .stream
+                .target_kbps
+                .store(flow.target_kbps(), Relaxed);
+            session.stream.jpeg_quality.store(flow.quality(), Relaxed);
+            if let Some(r) = resize {
+                if let Some(spec) = adapt_size(hub, session, &requested, &mut flow, r) {
+                    announced = spec;
+                    let text = welcome(hub, session, WelcomeReason::Bandwidth);
+                    if let Err(end) =
+                        send_timed(&mut sink, hub, Message::Text(text.into()), stall).await
+                    {
+                        return end;
+                    }
+                }
+            }
+        }
+        let can_send = flow.can_send(now);
+        session.stream.ready.store(can_send, Relaxed);
+        let idle_left = (!idle_timeout.is_zero())
+            .then(|| idle_timeout.saturating_sub(session.stream.since_last_pose()));
         let msg = tokio::select! {
             biased;
             c = ctl.recv() => match c {
                 Some(Control::Text(t)) => Message::Text(t.into()),
                 Some(Control::Welcome(t, spec)) => {
                     announced = spec;
+                    requested = spec;
+                    flow.shrink_level = 0;
+                    flow.set_limits(spec.max_kbps, spec.quality);
                     Message::Text(t.into())
                 }
                 Some(Control::Close(e)) => {
@@ -453,40 +501,187 @@ async fn write_loop(
                 send_close(&mut sink, hub, e).await;
                 return "no_frames";
             }
-            () = session.slot.ready() => match session.slot.take() {
+            () = tokio::time::sleep(idle_left.unwrap_or(FAR_FUTURE)), if idle_left.is_some() => {
+                if session.stream.since_last_pose() < idle_timeout {
+                    continue;
+                }
+                hub.telemetry.sessions_idle.fetch_add(1, Relaxed);
+                let e = ProtocolError::new(
+                    ErrorCode::Idle,
+                    format!("no pose for {} s (idle_timeout_s); reconnect to resume", hub.config.idle_timeout_s),
+                );
+                tracing::info!(session = session.id, "closing an idle session");
+                send_close(&mut sink, hub, e).await;
+                return "idle";
+            }
+            () = session.stream.ack_notify.notified() => {
+                flow.acked(session.stream.acked.load(Relaxed), Instant::now());
+                continue;
+            }
+            () = session.slot.ready(), if can_send => match session.slot.take() {
                 Some(frame) if !same_size(&frame.spec, &announced) => {
                     session.count_drop(&hub.telemetry, DropReason::Resized);
+                    if frame.spec.codec == Codec::H264 {
+                        session.stream.key_request.store(true, Relaxed);
+                    }
                     continue;
                 }
                 Some(frame) => {
+                    let started = Instant::now();
                     let len = frame.bytes.len() as u64;
-                    match tokio::time::timeout(stall, sink.send(Message::Binary(frame.bytes))).await {
-                        Ok(Ok(())) => {
-                            last_frame = tokio::time::Instant::now();
-                            session.sent.fetch_add(1, Relaxed);
-                            hub.telemetry.frames_sent.fetch_add(1, Relaxed);
-                            hub.telemetry.bytes_sent.fetch_add(len, Relaxed);
-                            continue;
+                    let mut total = len;
+                    if let Some(raw) = frame.raw {
+                        total += raw.len() as u64;
+                        if let Err(end) = send_timed(&mut sink, hub, Message::Binary(raw), stall).await {
+                            return end;
                         }
-                        Ok(Err(_)) => return "send failed",
-                        Err(_) => {
-                            hub.telemetry.sessions_stalled.fetch_add(1, Relaxed);
-                            return "stalled";
-                        }
+                        hub.telemetry.raw_frames.fetch_add(1, Relaxed);
                     }
+                    if let Err(end) = send_timed(&mut sink, hub, Message::Binary(frame.bytes), stall).await {
+                        return end;
+                    }
+                    let done = Instant::now();
+                    flow.sent(frame.frame, total, done - started, done);
+                    last_frame = tokio::time::Instant::now();
+                    session.sent.fetch_add(1, Relaxed);
+                    hub.telemetry.frames_sent.fetch_add(1, Relaxed);
+                    hub.telemetry.bytes_sent.fetch_add(len, Relaxed);
+                    continue;
                 }
                 None => continue,
             },
+            // Wake for the adaptation's ticks (and to re-check the flow window).
+            () = tokio::time::sleep(TICK) => continue,
         };
-        match tokio::time::timeout(stall, sink.send(msg)).await {
-            Ok(Ok(())) => {}
-            Ok(Err(_)) => return "send failed",
-            Err(_) => {
-                hub.telemetry.sessions_stalled.fetch_add(1, Relaxed);
-                return "stalled";
-            }
+        if let Err(end) = send_timed(&mut sink, hub, msg, stall).await {
+            return end;
         }
     }
+}
+
+/// Sends one message within `stall`; the end reason when it cannot.
+async fn send_timed(
+    sink: &mut Sink,
+    hub: &Hub,
+    msg: Message,
+    stall: Duration,
+) -> Result<(), &'static str> {
+    match tokio::time::timeout(stall, sink.send(msg)).await {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(_)) => Err("send failed"),
+        Err(_) => {
+            hub.telemetry.sessions_stalled.fetch_add(1, Relaxed);
+            Err("stalled")
+        }
+    }
+}
+
+/// This session's share of `fogcast_target_kbps`, removed when the writer ends.
+struct TargetGauge {
+    kbps: std::cell::Cell<u32>,
+    telemetry: Arc<super::telemetry::Telemetry>,
+}
+
+impl TargetGauge {
+    fn new(hub: &Hub, kbps: u32) -> TargetGauge {
+        hub.telemetry
+            .target_kbps_sum
+            .fetch_add(i64::from(kbps), Relaxed);
+        TargetGauge {
+            kbps: std::cell::Cell::new(kbps),
+            telemetry: hub.telemetry.clone(),
+        }
+    }
+
+    fn set(&self, hub: &Hub, kbps: u32) {
+        let delta = i64::from(kbps) - i64::from(self.kbps.replace(kbps));
+        hub.telemetry.target_kbps_sum.fetch_add(delta, Relaxed);
+    }
+}
+
+impl Drop for TargetGauge {
+    fn drop(&mut self) {
+        self.telemetry
+            .target_kbps_sum
+            .fetch_sub(i64::from(self.kbps.get()), Relaxed);
+    }
+}
+
+/// `requested` with its views halved `level` times (even sides, tiles kept), or `None`
+/// below [`MIN_ADAPTED_VIEW_PX`].
+fn scaled(requested: &SessionSpec, level: u32, hub: &Hub) -> Option<SessionSpec> {
+    if level == 0 {
+        return Some(*requested);
+    }
+    let div = 1u32.checked_shl(level)?;
+    let vw = (requested.view_width / div) & !1;
+    let vh = (requested.view_height / div) & !1;
+    if vw < MIN_ADAPTED_VIEW_PX || vh < MIN_ADAPTED_VIEW_PX {
+        return None;
+    }
+    let (cols, rows) = match (requested.layout, requested.views) {
+        (Layout::Mono, _) => (1, 1),
+        (Layout::Stereo, _) | (Layout::Split, 2) => (2, 1),
+        _ => (2, 2),
+    };
+    let limits = hub.config.spec_limits();
+    SessionSpec::validate(
+        vw * cols,
+        vh * rows,
+        requested.layout,
+        Some(requested.views),
+        Some(requested.quality),
+        Some(requested.eye_distance_m),
+        &limits,
+    )
+    .and_then(|s| {
+        s.with_stream(
+            requested.codec,
+            Some(requested.max_kbps),
+            Some(requested.raw_every),
+            &limits,
+        )
+    })
+    .ok()
+}
+
+/// Applies a bandwidth resize (the flow's level already moved); the new spec, or `None`
+/// (level restored) when it cannot be applied.
+fn adapt_size(
+    hub: &Hub,
+    session: &SessionShared,
+    requested: &SessionSpec,
+    flow: &mut Flow,
+    resize: Resize,
+) -> Option<SessionSpec> {
+    let undo = |flow: &mut Flow| match resize {
+        Resize::Down => flow.shrink_level -= 1,
+        Resize::Up => flow.shrink_level += 1,
+    };
+    let Some(spec) = scaled(requested, flow.shrink_level, hub) else {
+        undo(flow);
+        return None;
+    };
+    if let Err(e) = hub.reconfigure(session, spec) {
+        tracing::info!(session = session.id, error = %for_log(&e), "bandwidth resize not applied");
+        undo(flow);
+        return None;
+    }
+    session.stream.key_request.store(true, Relaxed);
+    let counter = match resize {
+        Resize::Down => &hub.telemetry.resized_down,
+        Resize::Up => &hub.telemetry.resized_up,
+    };
+    counter.fetch_add(1, Relaxed);
+    tracing::info!(
+        session = session.id,
+        ?resize,
+        width = spec.width,
+        height = spec.height,
+        target_kbps = flow.target_kbps(),
+        "frame size adapted to the client's bandwidth"
+    );
+    Some(spec)
 }
 
 /// Whether frames of spec `a` have the size and tiling the client was told in `b`.
@@ -627,9 +822,23 @@ fn handle_text(
             let new = spec.configure(&c, &hub.config.spec_limits())?;
             hub.reconfigure(session, new)?;
             tracing::info!(session = session.id, layout = layout_name(new.layout), width = new.width, height = new.height, quality = new.quality, "session reconfigured");
-            Ok(Some(Control::Welcome(welcome(hub, session), new)))
+            // A key frame follows every configure (the codec or size may have changed).
+            session.stream.key_request.store(true, Relaxed);
+            Ok(Some(Control::Welcome(
+                welcome(hub, session, WelcomeReason::Configure),
+                new,
+            )))
         }
-        ClientMessage::Ack(_) | ClientMessage::Keyframe => Ok(None),
+        ClientMessage::Ack(a) => {
+            session.stream.ack(a.frame);
+            Ok(None)
+        }
+        ClientMessage::Keyframe => {
+            if session.view().spec.codec == Codec::H264 {
+                session.stream.key_request.store(true, Relaxed);
+            }
+            Ok(None)
+        }
         ClientMessage::Hello(h) => Err(ProtocolError::new(
             ErrorCode::InvalidMessage,
             format!("hello (version {}) after the session started: send {{\"type\":\"configure\", ...}} to change it", clip(&h.version.to_string())),

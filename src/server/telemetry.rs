@@ -41,13 +41,16 @@ impl Summary {
 /// Why a frame did not reach a client.
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum DropReason {
-    /// A newer frame replaced it before the client's socket took it.
+    /// The client was not ready for it: a newer frame replaced it before the client's
+    /// socket took it, or its flow window was full (skipped before encoding).
     ClientSlow,
     /// The session's previous frame was still being encoded.
     EncoderBusy,
     /// Rendered at a size the client has not been told (yet, or any more): a configure
     /// changed it; only frames of the size in the last welcome are sent.
     Resized,
+    /// The H.264 rate control skipped it: the session's bitrate was spent.
+    RateControl,
 }
 
 /// Every counter of the server.
@@ -70,12 +73,28 @@ pub(crate) struct Telemetry {
     pub(crate) encode_seconds: Summary,
     stage_gpu: Mutex<BTreeMap<String, (f64, u64)>>,
     rays: [AtomicU64; 4],
-    pub(crate) frames_encoded: AtomicU64,
+    /// Frames encoded, per codec (JPEG, H.264).
+    pub(crate) frames_jpeg: AtomicU64,
+    pub(crate) frames_h264: AtomicU64,
+    /// H.264 key frames encoded.
+    pub(crate) key_frames: AtomicU64,
+    /// Raw debug frames sent (`raw_every`).
+    pub(crate) raw_frames: AtomicU64,
+    /// Frame-size changes made for a client's bandwidth, down and up.
+    pub(crate) resized_down: AtomicU64,
+    pub(crate) resized_up: AtomicU64,
+    /// Sessions closed (any reason); opened − closed = open.
+    pub(crate) sessions_closed: AtomicU64,
+    /// Sessions closed by the idle timeout.
+    pub(crate) sessions_idle: AtomicU64,
+    /// Sum over sessions of their target bitrate, kbit/s (gauge, set by the writers).
+    pub(crate) target_kbps_sum: AtomicI64,
     pub(crate) frames_sent: AtomicU64,
     pub(crate) bytes_sent: AtomicU64,
     dropped_slow: AtomicU64,
     dropped_busy: AtomicU64,
     dropped_resized: AtomicU64,
+    dropped_rate: AtomicU64,
     pub(crate) sessions_total: AtomicU64,
     pub(crate) sessions_stalled: AtomicU64,
     pub(crate) connections: AtomicI64,
@@ -116,6 +135,7 @@ impl Telemetry {
             DropReason::ClientSlow => self.dropped_slow.fetch_add(1, Relaxed),
             DropReason::EncoderBusy => self.dropped_busy.fetch_add(1, Relaxed),
             DropReason::Resized => self.dropped_resized.fetch_add(1, Relaxed),
+            DropReason::RateControl => self.dropped_rate.fetch_add(1, Relaxed),
         };
     }
 
@@ -124,6 +144,7 @@ impl Telemetry {
         self.dropped_slow.load(Relaxed)
             + self.dropped_busy.load(Relaxed)
             + self.dropped_resized.load(Relaxed)
+            + self.dropped_rate.load(Relaxed)
     }
 
     pub(crate) fn client_error(&self, code: ErrorCode, fatal: bool) {
@@ -185,6 +206,20 @@ impl Telemetry {
             "counter",
             "Sessions opened.",
             &[("", n(&self.sessions_total))],
+        );
+        metric(
+            &mut o,
+            "fogcast_sessions_closed_total",
+            "counter",
+            "Sessions closed, any reason (opened minus closed is fogcast_sessions).",
+            &[("", n(&self.sessions_closed))],
+        );
+        metric(
+            &mut o,
+            "fogcast_sessions_idle_total",
+            "counter",
+            "Sessions closed because they sent no pose for idle_timeout_s.",
+            &[("", n(&self.sessions_idle))],
         );
         metric(
             &mut o,
@@ -268,8 +303,42 @@ impl Telemetry {
             &mut o,
             "fogcast_frames_encoded_total",
             "counter",
-            "Session frames JPEG-encoded.",
-            &[("", n(&self.frames_encoded))],
+            "Session frames encoded, per codec.",
+            &[
+                ("codec=\"jpeg\"", n(&self.frames_jpeg)),
+                ("codec=\"h264\"", n(&self.frames_h264)),
+            ],
+        );
+        metric(
+            &mut o,
+            "fogcast_key_frames_total",
+            "counter",
+            "H.264 key frames encoded (stream starts, configures, client requests, GOP).",
+            &[("", n(&self.key_frames))],
+        );
+        metric(
+            &mut o,
+            "fogcast_raw_frames_total",
+            "counter",
+            "Raw debug frames sent (raw_every).",
+            &[("", n(&self.raw_frames))],
+        );
+        metric(
+            &mut o,
+            "fogcast_bandwidth_resizes_total",
+            "counter",
+            "Frame-size changes the server made for a client's bandwidth.",
+            &[
+                ("direction=\"down\"", n(&self.resized_down)),
+                ("direction=\"up\"", n(&self.resized_up)),
+            ],
+        );
+        metric(
+            &mut o,
+            "fogcast_target_kbps",
+            "gauge",
+            "Sum of every session's adaptive target bitrate, kbit/s.",
+            &[("", self.target_kbps_sum.load(Relaxed) as f64)],
         );
         metric(
             &mut o,
@@ -289,8 +358,8 @@ impl Telemetry {
             &mut o,
             "fogcast_frames_dropped_total",
             "counter",
-            "Session frames dropped: replaced by a newer one before a slow client took it, or skipped while the previous one was encoding.",
-            &[("reason=\"client_slow\"", n(&self.dropped_slow)), ("reason=\"encoder_busy\"", n(&self.dropped_busy)), ("reason=\"resized\"", n(&self.dropped_resized))],
+            "Session frames dropped: the client was not ready (replaced by a newer frame, or its flow window full), the previous frame was still encoding, rendered at a size the client was not told, or skipped by the H.264 rate control.",
+            &[("reason=\"client_slow\"", n(&self.dropped_slow)), ("reason=\"encoder_busy\"", n(&self.dropped_busy)), ("reason=\"resized\"", n(&self.dropped_resized)), ("reason=\"rate_control\"", n(&self.dropped_rate))],
         );
         metric(
             &mut o,

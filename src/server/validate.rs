@@ -6,7 +6,7 @@
 //! The wire types themselves are in [`crate::protocol`].
 
 use crate::protocol::{
-    clip, ClientMessage, Configure, ErrorCode, Hello, Layout, PoseUpdate, ViewPose,
+    clip, ClientMessage, Codec, Configure, ErrorCode, Hello, Layout, PoseUpdate, ViewPose,
     DEFAULT_EYE_DISTANCE_M, FOV_RANGE_DEG, MAX_COORD_M, MAX_EYE_DISTANCE_M, MAX_SPLIT_VIEWS,
     MIN_VIEW_PX,
 };
@@ -33,7 +33,7 @@ impl ProtocolError {
     }
 }
 
-const MESSAGE_TYPES: [&str; 3] = ["hello", "pose", "configure"];
+const MESSAGE_TYPES: [&str; 5] = ["hello", "pose", "configure", "ack", "keyframe"];
 
 /// Parses one client text message, sorting failures into `bad_json`, `unknown_type` and
 /// `invalid_message` (the size limit is checked by the caller, before parsing).
@@ -69,7 +69,7 @@ pub(crate) fn parse_client_message(text: &str) -> Result<ClientMessage, Protocol
         None => {
             return Err(ProtocolError::new(
                 ErrorCode::InvalidMessage,
-                "missing \"type\" field (one of hello, pose, configure)",
+                "missing \"type\" field (one of hello, pose, configure, ack, keyframe)",
             ))
         }
     };
@@ -77,7 +77,7 @@ pub(crate) fn parse_client_message(text: &str) -> Result<ClientMessage, Protocol
         return Err(ProtocolError::new(
             ErrorCode::UnknownType,
             format!(
-                "unknown message type {:?}; expected one of hello, pose, configure",
+                "unknown message type {:?}; expected one of hello, pose, configure, ack, keyframe",
                 clip(&ty)
             ),
         ));
@@ -99,6 +99,12 @@ pub(crate) struct SpecLimits {
     pub(crate) max_height: u32,
     /// Quality used when the client names none.
     pub(crate) default_quality: u8,
+    /// Bitrate ceiling, kbit/s (a client may ask for less).
+    pub(crate) max_kbps: u32,
+    /// Lowest bitrate a client may ask for, kbit/s.
+    pub(crate) min_kbps: u32,
+    /// Whether `raw_every` is allowed.
+    pub(crate) debug_raw_frames: bool,
 }
 
 /// A validated session: frame size, layout and how views tile the frame.
@@ -120,6 +126,12 @@ pub(crate) struct SessionSpec {
     pub(crate) quality: u8,
     /// Stereo eye distance, metres.
     pub(crate) eye_distance_m: f64,
+    /// Frame codec.
+    pub(crate) codec: Codec,
+    /// Bitrate ceiling, kbit/s.
+    pub(crate) max_kbps: u32,
+    /// Every `raw_every`-th frame also goes out raw (0: never; debugging).
+    pub(crate) raw_every: u32,
 }
 
 impl SessionSpec {
@@ -188,7 +200,49 @@ impl SessionSpec {
             view_height,
             quality,
             eye_distance_m,
+            codec: Codec::Jpeg,
+            max_kbps: limits.max_kbps,
+            raw_every: 0,
         })
+    }
+
+    /// This spec streamed with `codec` at most `max_kbps` (default: the server's), with
+    /// raw copies every `raw_every` frames; checked against the frame size and limits.
+    pub(crate) fn with_stream(
+        mut self,
+        codec: Codec,
+        max_kbps: Option<u32>,
+        raw_every: Option<u32>,
+        limits: &SpecLimits,
+    ) -> Result<SessionSpec, ProtocolError> {
+        let bad = |m: String| Err(ProtocolError::new(ErrorCode::InvalidHello, m));
+        if codec == Codec::H264 && (!self.width.is_multiple_of(2) || !self.height.is_multiple_of(2))
+        {
+            return bad(format!(
+                "codec h264 with resolution {}x{}: H.264 (4:2:0) needs an even width and height",
+                self.width, self.height
+            ));
+        }
+        let max_kbps = max_kbps.unwrap_or(limits.max_kbps);
+        if !(limits.min_kbps..=limits.max_kbps).contains(&max_kbps) {
+            return bad(format!(
+                "max_kbps {max_kbps}: must be {}..={} (the server's min_kbps..=max_kbps)",
+                limits.min_kbps, limits.max_kbps
+            ));
+        }
+        let raw_every = raw_every.unwrap_or(0);
+        if raw_every != 0 && !limits.debug_raw_frames {
+            return bad(format!(
+                "raw_every {raw_every}: raw frames are off on this server (debug_raw_frames = false); omit it"
+            ));
+        }
+        if raw_every > 1000 {
+            return bad(format!("raw_every {raw_every}: must be 1..=1000"));
+        }
+        self.codec = codec;
+        self.max_kbps = max_kbps;
+        self.raw_every = raw_every;
+        Ok(self)
     }
 
     /// Checks a hello's values (not its version or token).
@@ -201,7 +255,8 @@ impl SessionSpec {
             h.quality,
             h.eye_distance_m,
             limits,
-        )
+        )?
+        .with_stream(h.codec.unwrap_or_default(), h.max_kbps, h.raw_every, limits)
     }
 
     /// This spec changed by `c`. Changing the layout resets the view count to the new
@@ -222,6 +277,12 @@ impl SessionSpec {
             views,
             Some(c.quality.unwrap_or(self.quality)),
             Some(c.eye_distance_m.unwrap_or(self.eye_distance_m)),
+            limits,
+        )?
+        .with_stream(
+            c.codec.unwrap_or(self.codec),
+            Some(c.max_kbps.unwrap_or(self.max_kbps)),
+            Some(self.raw_every),
             limits,
         )
     }
@@ -375,6 +436,9 @@ pub(crate) const TEST_LIMITS: SpecLimits = SpecLimits {
     max_width: 1920,
     max_height: 1080,
     default_quality: 75,
+    max_kbps: 8000,
+    min_kbps: 150,
+    debug_raw_frames: false,
 };
 
 #[cfg(test)]
