@@ -36,14 +36,8 @@ started=$(date +%s)
 mkdir -p "$out"
 server_out="$out/server.stdout"
 server_log="$out/server.log"
-config="$out/serve.toml"
-cat >"$config" <<TOML
-# Written by scripts/soak.sh.
-idle_timeout_s = $idle_timeout_s
-TOML
-
 # shellcheck disable=SC2086 # SERVE_ARGS is a list of flags
-"$bin" serve --config "$config" --scene "$scene" --addr 127.0.0.1 --port 0 --debug-raw-frames ${SERVE_ARGS:-} >"$server_out" 2>"$server_log" &
+"$bin" serve --scene "$scene" --addr 127.0.0.1 --port 0 --debug-raw-frames --idle-timeout-s "$idle_timeout_s" ${SERVE_ARGS:-} >"$server_out" 2>"$server_log" &
 server=$!
 stop_server() {
   if kill -0 "$server" 2>/dev/null; then

@@ -1198,13 +1198,27 @@ async fn run_point(
         }
     })
     .await;
-    let end = match drained {
+    let mut end = match drained {
         Ok(r) => r?,
         Err(_) => anyhow::bail!(
             "the server still had sessions {} s after the viewers left",
             DRAIN_TIMEOUT.as_secs()
         ),
     };
+    // The server unregisters a session a moment before it counts it closed: give the
+    // counter that moment before comparing.
+    let closed_lags = |m: &scrape::Scrape| {
+        m.has(SESSIONS_CLOSED)
+            && m.get(SESSIONS_CLOSED, "") - start.get(SESSIONS_CLOSED, "")
+                < m.get(SESSIONS_OPENED, "") - start.get(SESSIONS_OPENED, "")
+    };
+    for _ in 0..20 {
+        if !closed_lags(&end) {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        end = scrape::metrics(&target.authority).await?;
+    }
     let sessions_accounting = account_sessions(&per_viewer, &start, &end);
     Ok(PointResult {
         viewers: views,
