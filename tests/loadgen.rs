@@ -455,9 +455,14 @@ async fn throttled_and_churning(codec: Codec) {
         codec.as_str(),
         std::process::id()
     ));
-    write_report(&report, &out).expect("report written");
+    let files = write_report(&report, &out).expect("report written");
+    assert!(
+        files.contains(&out.join("loadgen_windows.png")),
+        "{files:?}"
+    );
     let md = std::fs::read_to_string(out.join("loadgen.md")).unwrap();
     for want in [
+        "loadgen_windows.png",
         "## Viewer classes",
         "baseline (unthrottled alone)",
         "## Over time",

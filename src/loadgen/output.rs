@@ -371,6 +371,9 @@ fn markdown(r: &LoadgenReport) -> String {
     }
     md += "\n![fps vs viewers](loadgen_fps.png)\n\n![latency vs viewers](loadgen_latency.png)\n\n\
            ![frames per second of the largest point](loadgen_timeline.png)\n";
+    if r.points.iter().any(|p| p.server_windows.len() > 1) {
+        md += "\n![p95 latency per window](loadgen_windows.png)\n";
+    }
     md
 }
 
@@ -697,6 +700,37 @@ fn plots(r: &LoadgenReport, out: &Path) -> anyhow::Result<Vec<&'static str>> {
             false,
         )?;
         names.push("loadgen_timeline.png");
+    }
+    // Creep: p95 latency per window of each class of the largest point with windows.
+    let windowed = r
+        .points
+        .iter()
+        .filter(|p| p.server_windows.len() > 1)
+        .max_by_key(|p| p.viewers);
+    if let Some(p) = windowed {
+        let lines: Vec<Series> = p
+            .classes
+            .iter()
+            .map(|c| Series {
+                name: format!("{} p95", c.class.as_str()),
+                points: c
+                    .windows
+                    .iter()
+                    .filter_map(|w| Some(((w.start_s + w.end_s) / 2.0, w.latency_p95_ms?)))
+                    .collect(),
+            })
+            .collect();
+        plot(
+            &out.join("loadgen_windows.png"),
+            &format!("p95 pose-to-frame latency per window, {} views", p.viewers),
+            "seconds into the measured run (window middle)",
+            "p95 latency, ms",
+            &lines,
+            true,
+            false,
+            false,
+        )?;
+        names.push("loadgen_windows.png");
     }
     Ok(names)
 }
