@@ -85,7 +85,14 @@ impl StreamState {
 pub(crate) struct H264Stream {
     encoder: Encoder,
     size: (u32, u32),
+    /// The bitrate the encoder was last told, kbit/s (the target scaled by
+    /// `max_fps × frame interval`, see [`H264Stream::encode`]).
     bitrate_kbps: u32,
+    /// The frame rate the encoder was configured for, and the stream's measured frame
+    /// interval (exponential average, seconds) with the last frame's time.
+    max_fps: f64,
+    interval_s: f64,
+    last_ms: Option<u64>,
     frames_since_key: u32,
     rgb: Vec<u8>,
     yuv: YUVBuffer,
@@ -115,6 +122,9 @@ impl H264Stream {
             encoder,
             size: (width, height),
             bitrate_kbps: kbps,
+            max_fps: fps,
+            interval_s: 1.0 / fps,
+            last_ms: None,
             frames_since_key: 0,
             rgb: Vec::with_capacity(width as usize * height as usize * 3),
             yuv: YUVBuffer::new(width as usize, height as usize),
@@ -136,8 +146,18 @@ impl H264Stream {
         gop: u32,
         time_ms: u64,
     ) -> anyhow::Result<Option<AccessUnit>> {
-        if kbps != self.bitrate_kbps {
-            self.set_bitrate(kbps);
+        // OpenH264's bitrate mode budgets `bitrate / max_fps` per frame; a server frame
+        // rate below its cap (a slow GPU, skipped frames) would under-spend the target by
+        // that ratio, so the encoder is told the target scaled by it.
+        if let Some(last) = self.last_ms {
+            let dt = (time_ms.saturating_sub(last) as f64 / 1e3).clamp(1e-3, 1.0);
+            self.interval_s += 0.2 * (dt - self.interval_s);
+        }
+        self.last_ms = Some(time_ms);
+        let scale = (self.max_fps * self.interval_s).clamp(1.0, 10.0);
+        let wanted = (f64::from(kbps) * scale).round() as u32;
+        if wanted.abs_diff(self.bitrate_kbps) * 20 > self.bitrate_kbps {
+            self.set_bitrate(wanted);
         }
         if force_key || self.frames_since_key >= gop {
             self.encoder.force_intra_frame();
