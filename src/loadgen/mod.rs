@@ -283,8 +283,8 @@ impl LoadgenConfig {
         }
         if let Some(k) = self.max_kbps {
             anyhow::ensure!(
-                k >= 100,
-                "--max-kbps {k}: must be at least 100 (the protocol's floor)"
+                k > 0,
+                "--max-kbps 0: must be positive (the server refuses anything below its min_kbps, 150 by default)"
             );
         }
         if let Some(n) = self.raw_every {
