@@ -59,6 +59,14 @@ test: deps
 loadtest: deps-runtime build
 	@SCENE=$(SCENE) bash scripts/loadtest.sh
 
+# Streaming soak (issue 17, not part of `make test`): codec quality (JPEG vs H.264 PSNR
+# and bytes per frame), a throttled client among four, and a 10-minute churning soak
+# against one `fogcast serve --debug-raw-frames`; reports in out/soak/ (docs/loadtest.md).
+# About 20 minutes; SOAK_S, SOAK_THROTTLE_S, SOAK_QUALITY_S, ... shorten it.
+.PHONY: soak
+soak: deps-runtime build
+	@SCENE=$(SCENE) bash scripts/soak.sh
+
 lint:
 	$(CARGO) fmt --check
 	$(CARGO) clippy --all-targets -- -D warnings

@@ -2,13 +2,21 @@
 //! frames, finite ordered latency percentiles and bytes; the report files are written;
 //! a mixed sweep (three frame sizes at once) serves every size and reports each; an
 //! unreachable server, a refused hello and a sweep over the server's view limit give
-//! errors that say so. No timing assertions (DESIGN.md §7).
+//! errors that say so. The streaming scenario (issue 17): the throttle wrapper reads at
+//! its rate, PSNR follows its formula, and a short throttled + churning run passes the
+//! soak's checks. No timing assertions beyond the throttle's ±15 % (DESIGN.md §7).
 
 mod server_support;
 
-use fogcast::loadgen::{run, write_report, FrameSize, LoadgenConfig};
+use fogcast::loadgen::quality::{psnr, PSNR_CAP_DB};
+use fogcast::loadgen::{
+    run, write_report, Checks, FrameSize, LoadgenConfig, Throttled, ViewerClass,
+};
+use fogcast::protocol::Codec;
 use fogcast::server::ServerConfig;
 use server_support::*;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
 
 fn config_for(addr: std::net::SocketAddr) -> LoadgenConfig {
     LoadgenConfig {
@@ -76,7 +84,29 @@ async fn two_viewers_get_frames_latency_and_bytes() {
             "{who}: the timeline adds up to the frames"
         );
         assert!(v.header_render_ms.is_some_and(|ms| ms > 0.0), "{who}");
+        // JPEG: every frame a key frame; the payload is the frame less its 40-byte header.
+        assert_eq!(v.key_frames, v.frames, "{who}");
+        assert!(
+            (v.mean_frame_bytes - v.encoded_bytes_per_frame - 40.0).abs() < 1e-6,
+            "{who}: {} bytes per frame, {} encoded",
+            v.mean_frame_bytes,
+            v.encoded_bytes_per_frame
+        );
+        assert_eq!(
+            (v.raw_frames, v.sessions_opened, v.quality),
+            (0, 1, None),
+            "{who}"
+        );
+        assert!(!v.throttled, "{who}");
     }
+    let a = &p.sessions_accounting;
+    assert_eq!(
+        (a.opened_by_loadgen, a.server_opened, a.open_after),
+        (2, 2, 0),
+        "{a:?}"
+    );
+    assert!(a.accounted && report.checks.is_empty(), "{a:?}");
+    assert_eq!(p.classes.len(), 1, "unthrottled viewers only");
     let pooled = p.summary.latency.expect("pooled latency");
     assert!(pooled.p50_ms <= pooled.p95_ms && pooled.p95_ms <= pooled.p99_ms);
     assert_eq!(
@@ -259,5 +289,257 @@ async fn errors_name_the_problem() {
         msg.contains("--viewers 8") && msg.contains("at most 4"),
         "{msg}"
     );
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_throttle_reads_at_its_rate() {
+    // A sender that writes as fast as the socket takes it.
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    let sender = tokio::spawn(async move {
+        while let Ok((mut s, _)) = listener.accept().await {
+            tokio::spawn(async move {
+                let chunk = vec![7u8; 64 * 1024];
+                while s.write_all(&chunk).await.is_ok() {}
+            });
+        }
+    });
+    const KBPS: u32 = 2000;
+    let tcp = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let mut slow = Throttled::new(tcp, Some(KBPS));
+    let mut buf = vec![0u8; 256 * 1024];
+    let started = Instant::now();
+    let mut bytes = 0usize;
+    while started.elapsed() < Duration::from_secs(2) {
+        bytes += slow.read(&mut buf).await.unwrap();
+    }
+    let kbps = bytes as f64 * 8.0 / 1000.0 / started.elapsed().as_secs_f64();
+    assert!(
+        (kbps - f64::from(KBPS)).abs() <= 0.15 * f64::from(KBPS),
+        "read {bytes} bytes at {kbps:.0} kbit/s through a {KBPS} kbit/s throttle"
+    );
+    // Without a rate the wrapper passes everything: the same sender gives far more.
+    let tcp = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let mut fast = Throttled::new(tcp, None);
+    let started = Instant::now();
+    let mut fast_bytes = 0usize;
+    while started.elapsed() < Duration::from_millis(300) {
+        fast_bytes += fast.read(&mut buf).await.unwrap();
+    }
+    let fast_kbps = fast_bytes as f64 * 8.0 / 1000.0 / started.elapsed().as_secs_f64();
+    assert!(
+        fast_kbps > 5.0 * f64::from(KBPS),
+        "unthrottled {fast_kbps:.0} kbit/s: the sender, not the throttle, set the rate"
+    );
+    sender.abort();
+}
+
+#[test]
+fn psnr_is_capped_for_identical_pictures_and_follows_the_formula_for_noise() {
+    let (w, h) = (32usize, 16usize);
+    let raw: Vec<u8> = (0..w * h)
+        .flat_map(|i| [100 + (i % 50) as u8, 90, 120 - (i % 30) as u8, 255])
+        .collect();
+    let same: Vec<u8> = raw
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    assert_eq!(psnr(&same, &raw), Some(PSNR_CAP_DB));
+    // ±8 on every channel, alternating: MSE 64, PSNR 10·log10(255²/64) = 30.07 dB.
+    let noisy: Vec<u8> = same
+        .iter()
+        .enumerate()
+        .map(|(i, v)| if i % 2 == 0 { v + 8 } else { v - 8 })
+        .collect();
+    let db = psnr(&noisy, &raw).unwrap();
+    let want = 10.0 * (255.0f64 * 255.0 / 64.0).log10();
+    assert!((db - want).abs() < 1e-9, "PSNR {db} dB, formula {want} dB");
+    assert!((want - 30.07).abs() < 0.01);
+    assert_eq!(
+        psnr(&noisy[..30], &raw),
+        None,
+        "different sizes are not compared"
+    );
+}
+
+/// The soak's throttled and churn scenarios in short: 3 sessions, the first reading at
+/// 100 kbit/s (about half of what a 96x54 JPEG stream asks at first; the H.264 stream of
+/// that size fits in it), everyone reopening its session every 5 s, a baseline of the
+/// unthrottled two first; the soak's checks, looser.
+async fn throttled_and_churning(codec: Codec) {
+    let server = start(test_config()).await;
+    let config = LoadgenConfig {
+        codec,
+        viewers: vec![3],
+        seconds: 12.0,
+        warmup_s: 1.0,
+        window_s: 3.0,
+        throttle_kbps: Some(100),
+        throttled: 1,
+        baseline_s: Some(4.0),
+        churn_s: Some(5.0),
+        sizes: vec![FrameSize {
+            width: 96,
+            height: 54,
+        }],
+        checks: Checks {
+            latency_p95_ms: Some(1500.0),
+            creep: Some(5.0),
+            fps_within: Some(0.5),
+            memory_growth: Some(0.5),
+            sessions: true,
+        },
+        ..config_for(server.local_addr())
+    };
+    let report = run(&config, "test", &|line| eprintln!("{line}"))
+        .await
+        .expect("loadgen runs");
+    let p = &report.points[0];
+    let classes: Vec<(ViewerClass, usize)> =
+        p.classes.iter().map(|c| (c.class, c.sessions)).collect();
+    assert_eq!(
+        classes,
+        vec![(ViewerClass::Unthrottled, 2), (ViewerClass::Throttled, 1)]
+    );
+    assert!(p.per_viewer[0].throttled && !p.per_viewer[1].throttled);
+    for c in &p.classes {
+        assert_eq!(c.windows.len(), 4, "{:?}: 12 s in 3 s windows", c.class);
+        assert!(c.summary.frames_total > 0, "{:?} got no frames", c.class);
+    }
+    // The throttled viewer gets no more than its link carries (100 kbit/s = 12.5 KB/s).
+    let slow = &p.classes[1].summary;
+    assert!(
+        slow.bytes_per_s_per_viewer <= 1.15 * 12_500.0,
+        "the throttled viewer read {:.0} B/s",
+        slow.bytes_per_s_per_viewer
+    );
+    let b = p.baseline.as_ref().expect("a baseline phase");
+    assert_eq!(b.sessions, 2);
+    assert!(b.summary.fps_mean > 0.0);
+    assert_eq!(p.server_windows.len(), 4);
+    assert!(p
+        .server_windows
+        .iter()
+        .all(|w| w.resident_memory_mib.is_some_and(|m| m > 0.0)));
+    // Churn: every viewer opened more than one session, and the server counted each.
+    let a = &p.sessions_accounting;
+    assert!(
+        p.per_viewer.iter().all(|v| v.sessions_opened >= 2),
+        "{:?}",
+        p.per_viewer
+            .iter()
+            .map(|v| v.sessions_opened)
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(a.server_opened, a.opened_by_loadgen, "{a:?}");
+    let names: Vec<&str> = report.checks.iter().map(|c| c.check.as_str()).collect();
+    for want in [
+        "--check-latency-p95-ms",
+        "--check-creep",
+        "--check-fps-within",
+        "--check-memory-growth",
+        "--check-sessions",
+    ] {
+        assert!(names.contains(&want), "{want} evaluated: {names:?}");
+    }
+    for c in &report.checks {
+        eprintln!("{} {}: {}", c.check, c.passed, c.detail);
+    }
+    let failed = report.failed_checks();
+    assert!(failed.is_empty(), "checks failed: {failed:#?}");
+    assert_eq!(server.counts(), (0, 0));
+
+    let out = std::env::temp_dir().join(format!(
+        "fogcast-loadgen-soak-{}-{}",
+        codec.as_str(),
+        std::process::id()
+    ));
+    let files = write_report(&report, &out).expect("report written");
+    assert!(
+        files.contains(&out.join("loadgen_windows.png")),
+        "{files:?}"
+    );
+    let md = std::fs::read_to_string(out.join("loadgen.md")).unwrap();
+    for want in [
+        "loadgen_windows.png",
+        "## Viewer classes",
+        "baseline (unthrottled alone)",
+        "## Over time",
+        "## Sessions",
+        "## Checks",
+    ] {
+        assert!(md.contains(want), "loadgen.md lacks {want:?}:\n{md}");
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+    server.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_throttled_jpeg_viewer_and_churn_pass_the_checks() {
+    throttled_and_churning(Codec::Jpeg).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_throttled_h264_viewer_and_churn_pass_the_checks() {
+    throttled_and_churning(Codec::H264).await;
+}
+
+/// `--raw-every` on a `debug_raw_frames` server: both codecs decode, match their raw
+/// frames closely, and the raw frames count in neither frames nor bytes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn raw_frames_measure_the_quality_of_both_codecs() {
+    let server = start(ServerConfig {
+        debug_raw_frames: true,
+        ..test_config()
+    })
+    .await;
+    let size = FrameSize {
+        width: 128,
+        height: 72,
+    };
+    for codec in [Codec::Jpeg, Codec::H264] {
+        let config = LoadgenConfig {
+            viewers: vec![1],
+            seconds: 3.0,
+            codec,
+            raw_every: Some(2),
+            sizes: vec![size],
+            ..config_for(server.local_addr())
+        };
+        let report = run(&config, "test", &|line| eprintln!("{line}"))
+            .await
+            .expect("loadgen runs");
+        let v = &report.points[0].per_viewer[0];
+        let who = codec.as_str();
+        assert!(v.frames > 0 && v.raw_frames > 0, "{who}: {v:?}");
+        assert_eq!((v.bad_frames, v.decode_errors), (0, 0), "{who}: {v:?}");
+        assert!(v.server_errors.is_empty(), "{who}: {:?}", v.server_errors);
+        let raw_bytes = f64::from(size.width * size.height * 4);
+        assert!(
+            v.encoded_bytes_per_frame > 0.0 && v.encoded_bytes_per_frame < raw_bytes / 2.0,
+            "{who}: {} encoded bytes per frame; raw frames must not count",
+            v.encoded_bytes_per_frame
+        );
+        assert!(v.key_frames >= 1, "{who}: no key frame");
+        if codec == Codec::H264 {
+            assert!(
+                v.key_frames < v.frames,
+                "{who}: P frames between key frames"
+            );
+        }
+        let q = v
+            .quality
+            .unwrap_or_else(|| panic!("{who}: no frame compared"));
+        assert!(
+            q.compared > 0 && q.compared as u64 <= v.frames,
+            "{who}: {q:?}"
+        );
+        assert!(
+            q.psnr_min_db > 25.0 && q.psnr_min_db <= q.psnr_mean_db && q.psnr_mean_db < PSNR_CAP_DB,
+            "{who}: PSNR {q:?}"
+        );
+        assert_eq!(report.points[0].summary.quality, Some(q));
+    }
     server.shutdown().await.unwrap();
 }

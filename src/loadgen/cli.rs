@@ -1,10 +1,10 @@
 //! `fogcast loadgen` flags.
 
 use super::{
-    describe, run, sessions_count, write_report, FrameSize, LoadgenConfig, DEFAULT_SIZE,
+    describe, run, sessions_count, write_report, Checks, FrameSize, LoadgenConfig, DEFAULT_SIZE,
     DEFAULT_VIEWERS, MIXED_SWEEP_SIZES, MIXED_SWEEP_VIEWERS,
 };
-use crate::protocol::Layout;
+use crate::protocol::{Codec, Layout};
 use std::path::PathBuf;
 
 /// Session layout of the simulated viewers.
@@ -16,6 +16,24 @@ pub enum LayoutArg {
     Stereo,
     /// `--split-views` tiles per session.
     Split,
+}
+
+/// Frame codec the viewers ask for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CodecArg {
+    /// Every frame a JPEG.
+    Jpeg,
+    /// An H.264 stream.
+    H264,
+}
+
+/// Whether the viewers ack their frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum AckArg {
+    /// Ack every frame (the server's flow control and bitrate adaptation use the acks).
+    On,
+    /// Never ack (the server paces by TCP back-pressure alone).
+    Off,
 }
 
 /// Which sweep to run.
@@ -82,6 +100,53 @@ pub struct LoadgenArgs {
     /// Output folder (loadgen.json, loadgen.csv, loadgen.md, PNG plots).
     #[arg(long, default_value = "out/loadgen")]
     pub out: PathBuf,
+    /// Frame codec each session asks for (h264 needs even frame sizes).
+    #[arg(long, value_enum, default_value = "jpeg")]
+    pub codec: CodecArg,
+    /// Ack every frame received (`{"type":"ack"}`), which turns on the server's flow control.
+    #[arg(long, value_enum, default_value = "on")]
+    pub ack: AckArg,
+    /// Bitrate ceiling each session asks for, kbit/s [default: the server's].
+    #[arg(long)]
+    pub max_kbps: Option<u32>,
+    /// Image quality: ask for a raw frame every N frames (the server needs
+    /// --debug-raw-frames), decode the encoded frames and report their PSNR.
+    #[arg(long, value_name = "N")]
+    pub raw_every: Option<u32>,
+    /// Slow clients: the throttled viewers read their socket at K kbit/s.
+    #[arg(long, value_name = "K")]
+    pub throttle_kbps: Option<u32>,
+    /// How many viewers of each point are throttled (the first ones) [default: 1 with
+    /// --throttle-kbps].
+    #[arg(long, value_name = "N")]
+    pub throttled: Option<usize>,
+    /// Cut the measured run into windows of W seconds (latency, fps and server memory per
+    /// window, to show creep).
+    #[arg(long, value_name = "W", default_value_t = LoadgenConfig::default().window_s)]
+    pub window_s: f64,
+    /// Churn: every viewer closes and reopens its session every S seconds (staggered).
+    #[arg(long, value_name = "S")]
+    pub churn_s: Option<f64>,
+    /// Measure the unthrottled viewers alone for B seconds first (the reference of
+    /// --check-fps-within); the throttled viewers join afterwards.
+    #[arg(long, value_name = "B")]
+    pub baseline_s: Option<f64>,
+    /// Check: every class's pose-to-frame p95 at most X ms.
+    #[arg(long, value_name = "X")]
+    pub check_latency_p95_ms: Option<f64>,
+    /// Check: the throttled class's p95 in the last window at most R × the first window's.
+    #[arg(long, value_name = "R")]
+    pub check_creep: Option<f64>,
+    /// Check: the unthrottled viewers' fps within F (a fraction, 0.1 = 10 %) of the
+    /// baseline's.
+    #[arg(long, value_name = "F")]
+    pub check_fps_within: Option<f64>,
+    /// Check: the server's RSS in the last window at most (1 + G) × the second window's.
+    #[arg(long, value_name = "G")]
+    pub check_memory_growth: Option<f64>,
+    /// Check: every session loadgen opened was counted by the server and closed.
+    #[arg(long)]
+    pub check_sessions: bool,
 }
 
 impl LoadgenArgs {
@@ -124,6 +189,29 @@ impl LoadgenArgs {
             split_views: self.split_views,
             token: self.token.clone(),
             scene: self.scene.clone(),
+            codec: match self.codec {
+                CodecArg::Jpeg => Codec::Jpeg,
+                CodecArg::H264 => Codec::H264,
+            },
+            ack: self.ack == AckArg::On,
+            max_kbps: self.max_kbps,
+            raw_every: self.raw_every,
+            throttle_kbps: self.throttle_kbps,
+            throttled: match (self.throttle_kbps, self.throttled) {
+                (_, Some(n)) => n,
+                (Some(_), None) => 1,
+                (None, None) => 0,
+            },
+            window_s: self.window_s,
+            churn_s: self.churn_s,
+            baseline_s: self.baseline_s,
+            checks: Checks {
+                latency_p95_ms: self.check_latency_p95_ms,
+                creep: self.check_creep,
+                fps_within: self.check_fps_within,
+                memory_growth: self.check_memory_growth,
+                sessions: self.check_sessions,
+            },
         };
         c.validate()?;
         Ok(c)
@@ -152,6 +240,20 @@ pub fn loadgen(args: &LoadgenArgs) -> anyhow::Result<()> {
             p.server.render_calls_per_frame,
             p.server.grid_rays_per_frame
         );
+        for c in p.classes.iter().filter(|_| p.classes.len() > 1) {
+            println!(
+                "      {} ({}): {}",
+                c.class.as_str(),
+                sessions_count(c.sessions),
+                describe(&c.summary)
+            );
+        }
+        if let Some(q) = s.quality {
+            println!(
+                "      PSNR mean {:.2} dB, min {:.2} dB over {} frames; {:.0} bytes per encoded frame, {} key frames, {} decode errors",
+                q.psnr_mean_db, q.psnr_min_db, q.compared, s.encoded_bytes_per_frame, s.key_frames, s.decode_errors
+            );
+        }
         if p.sizes.len() > 1 {
             for size in &p.sizes {
                 println!(
@@ -173,6 +275,28 @@ pub fn loadgen(args: &LoadgenArgs) -> anyhow::Result<()> {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    for c in &report.checks {
+        println!(
+            "check {} at {} views: {}: {}",
+            c.check,
+            c.views,
+            if c.passed { "pass" } else { "FAIL" },
+            c.detail
+        );
+    }
+    let failed = report.failed_checks();
+    if !failed.is_empty() {
+        anyhow::bail!(
+            "{} of {} checks failed: {}",
+            failed.len(),
+            report.checks.len(),
+            failed
+                .iter()
+                .map(|c| format!("{} at {} views ({})", c.check, c.views, c.detail))
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
     Ok(())
 }
 
@@ -242,5 +366,92 @@ mod tests {
         assert!(e.contains("64x36 is given twice"), "{e}");
         let e = error(&["--mix", "8x8"]);
         assert!(e.contains("8x8") && e.contains("16..=8192"), "{e}");
+    }
+
+    #[test]
+    fn streaming_flags_and_their_errors() {
+        let c = config(&[]).unwrap();
+        assert_eq!(
+            (c.codec, c.ack, c.throttled, c.raw_every),
+            (Codec::Jpeg, true, 0, None)
+        );
+        let c = config(&[
+            "--codec",
+            "h264",
+            "--ack",
+            "off",
+            "--throttle-kbps",
+            "1000",
+            "--raw-every",
+            "5",
+            "--viewers",
+            "4",
+            "--baseline-s",
+            "30",
+            "--check-fps-within",
+            "0.1",
+            "--seconds",
+            "300",
+            "--window-s",
+            "60",
+            "--check-creep",
+            "1.2",
+            "--check-sessions",
+        ])
+        .unwrap();
+        assert_eq!(
+            (c.codec, c.ack, c.throttle_kbps, c.throttled),
+            (Codec::H264, false, Some(1000), 1)
+        );
+        assert_eq!((c.raw_every, c.windows()), (Some(5), 5));
+        assert!(c.checks.sessions && c.checks.any());
+        let hello = c.hello(c.sizes[0]);
+        assert_eq!((hello.codec, hello.raw_every), (Some(Codec::H264), Some(5)));
+
+        let error = |flags: &[&str]| format!("{:#}", config(flags).unwrap_err());
+        let e = error(&["--codec", "h264", "--width", "255"]);
+        assert!(e.contains("even"), "{e}");
+        let e = error(&["--throttled", "2"]);
+        assert!(e.contains("--throttle-kbps"), "{e}");
+        let e = error(&[
+            "--throttle-kbps",
+            "500",
+            "--throttled",
+            "3",
+            "--viewers",
+            "2",
+        ]);
+        assert!(e.contains("only 2 sessions"), "{e}");
+        let e = error(&[
+            "--throttle-kbps",
+            "500",
+            "--viewers",
+            "1",
+            "--baseline-s",
+            "5",
+        ]);
+        assert!(e.contains("unthrottled"), "{e}");
+        let e = error(&["--check-fps-within", "0.1"]);
+        assert!(e.contains("--baseline-s"), "{e}");
+        let e = error(&[
+            "--check-memory-growth",
+            "0.1",
+            "--seconds",
+            "60",
+            "--window-s",
+            "30",
+        ]);
+        assert!(e.contains("makes 2"), "{e}");
+        let e = error(&["--raw-every", "0"]);
+        assert!(e.contains("--raw-every 0"), "{e}");
+        let e = error(&[
+            "--check-creep",
+            "0.5",
+            "--seconds",
+            "30",
+            "--window-s",
+            "10",
+        ]);
+        assert!(e.contains("--check-creep 0.5"), "{e}");
     }
 }

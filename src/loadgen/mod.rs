@@ -22,27 +22,40 @@
 //! Then it closes the sessions, waits for the server to let them go, and goes on to the
 //! next point. [`run`] does the sweep, [`write_report`] writes loadgen.json, .csv, .md
 //! and the plots.
+//!
+//! Streaming scenarios (issue 17): every viewer acks its frames (`--ack`), asks for
+//! `--codec jpeg|h264`, and optionally measures image quality against raw frames
+//! (`--raw-every`, [`quality`]); the first `--throttled` viewers of a point read their
+//! socket at `--throttle-kbps` ([`Throttled`]) and are reported as their own class; a
+//! baseline phase (`--baseline-s`) measures the unthrottled viewers alone first; the
+//! window is also cut into `--window-s` pieces so latency and memory creep show;
+//! `--churn-s` closes and reopens every session periodically; `--check-*` turn the
+//! numbers into pass/fail ([`Checks`]).
 
+mod checks;
 mod cli;
 mod client;
 mod output;
 mod paths;
+mod point;
+pub mod quality;
 mod scrape;
 mod stats;
+mod throttle;
 
-pub use cli::{loadgen, LayoutArg, LoadgenArgs, SweepArg};
+pub use checks::{CheckResult, Checks};
+pub use cli::{loadgen, AckArg, CodecArg, LayoutArg, LoadgenArgs, SweepArg};
 pub use output::write_report;
+pub use throttle::Throttled;
 
-use crate::protocol::{Hello, Layout, MAX_SPLIT_VIEWS, PROTOCOL_VERSION};
+use crate::protocol::{Codec, Hello, Layout, MAX_SPLIT_VIEWS, PROTOCOL_VERSION};
 use anyhow::Context as _;
-use client::{Flight, Live, Target};
+use client::Target;
 use paths::Paths;
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
-use tokio::sync::watch;
+use std::time::Instant;
 
 /// A frame size a session asks for, written `WIDTHxHEIGHT` (`320x180`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -132,6 +145,29 @@ pub struct LoadgenConfig {
     pub token: Option<String>,
     /// Scene whose camera loop the viewers fly (default: the server's scene per `/healthz`).
     pub scene: Option<String>,
+    /// Frame codec each session asks for.
+    pub codec: Codec,
+    /// Every viewer acks every frame it receives (flow control on the server).
+    pub ack: bool,
+    /// Bitrate ceiling each session asks for, kbit/s (default: the server's).
+    pub max_kbps: Option<u32>,
+    /// Ask for a raw frame every `raw_every` frames and measure the encoded frames' PSNR
+    /// against them (needs a server with `debug_raw_frames`).
+    pub raw_every: Option<u32>,
+    /// The throttled viewers read their socket at this many kbit/s.
+    pub throttle_kbps: Option<u32>,
+    /// How many viewers of each point are throttled (the first ones).
+    pub throttled: usize,
+    /// Length of the windows the measured run is cut into (latency, fps and server
+    /// memory per window), seconds.
+    pub window_s: f64,
+    /// Every viewer closes and reopens its session this often, seconds (staggered).
+    pub churn_s: Option<f64>,
+    /// Seconds of a baseline phase with only the unthrottled viewers, before the
+    /// throttled ones join and the measured window starts.
+    pub baseline_s: Option<f64>,
+    /// Pass/fail checks on the numbers.
+    pub checks: Checks,
 }
 
 impl Default for LoadgenConfig {
@@ -149,6 +185,16 @@ impl Default for LoadgenConfig {
             split_views: 2,
             token: None,
             scene: None,
+            codec: Codec::Jpeg,
+            ack: true,
+            max_kbps: None,
+            raw_every: None,
+            throttle_kbps: None,
+            throttled: 0,
+            window_s: 60.0,
+            churn_s: None,
+            baseline_s: None,
+            checks: Checks::default(),
         }
     }
 }
@@ -221,7 +267,95 @@ impl LoadgenConfig {
             "--quality {}: must be 1..=100",
             self.quality
         );
-        Ok(())
+        self.validate_streaming()
+    }
+
+    /// The streaming scenario's flags (issue 17), checked.
+    fn validate_streaming(&self) -> anyhow::Result<()> {
+        if self.codec == Codec::H264 {
+            for s in &self.sizes {
+                anyhow::ensure!(
+                    s.width.is_multiple_of(2) && s.height.is_multiple_of(2),
+                    "frame size {s} with --codec h264: H.264 needs an even width and height"
+                );
+            }
+        }
+        if let Some(k) = self.max_kbps {
+            anyhow::ensure!(
+                k > 0,
+                "--max-kbps 0: must be positive (the server refuses anything below its min_kbps, 150 by default)"
+            );
+        }
+        if let Some(n) = self.raw_every {
+            anyhow::ensure!((1..=1000).contains(&n), "--raw-every {n}: must be 1..=1000");
+        }
+        match self.throttle_kbps {
+            Some(k) => {
+                anyhow::ensure!(
+                    (8..=10_000_000).contains(&k),
+                    "--throttle-kbps {k}: must be 8..=10000000"
+                );
+                let per = self.views_per_session();
+                for &n in &self.viewers {
+                    let sessions = n / per;
+                    anyhow::ensure!(
+                        self.throttled <= sessions,
+                        "--throttled {}: the point of {n} views has only {sessions} sessions",
+                        self.throttled
+                    );
+                    anyhow::ensure!(
+                        self.baseline_s.is_none() || self.throttled < sessions,
+                        "--baseline-s with --throttled {} at {n} views: the baseline needs at least one unthrottled viewer",
+                        self.throttled
+                    );
+                }
+            }
+            None => anyhow::ensure!(
+                self.throttled == 0,
+                "--throttled {}: give --throttle-kbps too (the rate the throttled viewers read at)",
+                self.throttled
+            ),
+        }
+        for (flag, v, lo, hi) in [
+            ("--window-s", Some(self.window_s), 1.0, 3600.0),
+            ("--churn-s", self.churn_s, 1.0, 3600.0),
+            ("--baseline-s", self.baseline_s, 1.0, 3600.0),
+        ] {
+            if let Some(v) = v {
+                anyhow::ensure!(
+                    v.is_finite() && (lo..=hi).contains(&v),
+                    "{flag} {v}: must be {lo}..={hi}"
+                );
+            }
+        }
+        anyhow::ensure!(
+            self.checks.fps_within.is_none() || self.baseline_s.is_some(),
+            "--check-fps-within compares with a baseline: give --baseline-s too"
+        );
+        if self.checks.memory_growth.is_some() || self.checks.creep.is_some() {
+            let windows = self.windows();
+            anyhow::ensure!(
+                windows >= 3,
+                "--check-memory-growth/--check-creep compare windows of the run, but --seconds {} / --window-s {} makes {windows}; make --window-s at most a third of --seconds",
+                self.seconds,
+                self.window_s
+            );
+        }
+        self.checks.validate()
+    }
+
+    /// Windows the measured run is cut into: equal parts of about `window_s`.
+    pub fn windows(&self) -> usize {
+        ((self.seconds / self.window_s).round() as usize).max(1)
+    }
+
+    /// Throttled sessions of a point of `sessions` sessions (the first ones).
+    fn throttled_of(&self, sessions: usize) -> usize {
+        if self.throttle_kbps.is_some() {
+            self.throttled.min(sessions)
+        } else {
+            0
+        }
     }
 
     /// Frame size of session `i` of a point: the sizes in turn.
@@ -238,8 +372,10 @@ impl LoadgenConfig {
             views: (self.layout == Layout::Split).then_some(self.split_views),
             quality: Some(self.quality),
             eye_distance_m: None,
+            codec: Some(self.codec),
+            max_kbps: self.max_kbps,
+            raw_every: self.raw_every,
             token: self.token.clone(),
-            ..Hello::default()
         }
     }
 }
@@ -300,8 +436,28 @@ pub struct ViewerStats {
     pub header_render_ms: Option<f64>,
     /// Mean compose + encode time the frame headers report, ms.
     pub header_encode_ms: Option<f64>,
-    /// Frames whose header or JPEG did not match the session (should be 0).
+    /// Frames whose header or payload did not match the session (should be 0).
     pub bad_frames: u64,
+    /// Whether this viewer read its socket at `--throttle-kbps`.
+    pub throttled: bool,
+    /// Mean encoded payload per frame (header and raw frames excluded), bytes.
+    pub encoded_bytes_per_frame: f64,
+    /// Key frames received (every JPEG; H.264 IDRs).
+    pub key_frames: u64,
+    /// Raw (debugging) frames received; not counted in frames, fps or bytes.
+    pub raw_frames: u64,
+    /// Encoded frames that did not decode (`--raw-every` only; each asked for a key frame).
+    pub decode_errors: u64,
+    /// PSNR of the encoded frames against the raw ones (`--raw-every` only).
+    pub quality: Option<Quality>,
+    /// Sessions this viewer opened during the whole point (more than 1 with churn).
+    pub sessions_opened: u64,
+    /// Failed attempts to reopen a churned session.
+    pub reopen_failures: u64,
+    /// Welcomes with `reason: bandwidth`: the server changed the frame size.
+    pub bandwidth_welcomes: u64,
+    /// The server did not know acks (`unknown_type`), so this viewer stopped sending them.
+    pub acks_refused: bool,
     /// Error messages the server sent (should be none).
     pub server_errors: Vec<String>,
     /// Why the session ended before the window did (should be `None`).
@@ -343,6 +499,120 @@ pub struct PointSummary {
     pub viewers_ended_early: usize,
     /// Frames that did not match their session, all viewers.
     pub bad_frames: u64,
+    /// Mean encoded payload per frame over every viewer's frames (raw excluded), bytes.
+    pub encoded_bytes_per_frame: f64,
+    /// Key frames received, all viewers.
+    pub key_frames: u64,
+    /// Frames that did not decode, all viewers (`--raw-every`).
+    pub decode_errors: u64,
+    /// PSNR over every viewer's compared frames (`--raw-every`).
+    pub quality: Option<Quality>,
+}
+
+/// PSNR of the encoded frames against the raw frames of the same frame number.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Quality {
+    /// Frames compared.
+    pub compared: usize,
+    /// Mean PSNR, dB (identical pictures count as [`quality::PSNR_CAP_DB`]).
+    pub psnr_mean_db: f64,
+    /// Lowest PSNR, dB.
+    pub psnr_min_db: f64,
+}
+
+/// Which viewers a class holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewerClass {
+    /// Viewers reading their socket as fast as frames come.
+    Unthrottled,
+    /// Viewers reading at `--throttle-kbps`.
+    Throttled,
+}
+
+impl ViewerClass {
+    /// The class's name in reports.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ViewerClass::Unthrottled => "unthrottled",
+            ViewerClass::Throttled => "throttled",
+        }
+    }
+}
+
+/// One window of the measured run, over the viewers of one class.
+#[derive(Debug, Clone, Serialize)]
+pub struct WindowStats {
+    /// Start, seconds into the measured run.
+    pub start_s: f64,
+    /// End, seconds.
+    pub end_s: f64,
+    /// Mean of the viewers' fps in the window.
+    pub fps_mean: f64,
+    /// 95th percentile pose-to-frame latency over the window's samples, ms.
+    pub latency_p95_ms: Option<f64>,
+    /// Latency samples in the window.
+    pub latency_samples: usize,
+}
+
+/// The viewers of one class within a point.
+#[derive(Debug, Clone, Serialize)]
+pub struct ClassResult {
+    /// Throttled or not.
+    pub class: ViewerClass,
+    /// Sessions of the class.
+    pub sessions: usize,
+    /// The rate they read at, kbit/s (throttled class).
+    pub throttle_kbps: Option<u32>,
+    /// Over the whole measured window.
+    pub summary: PointSummary,
+    /// Per `--window-s` window.
+    pub windows: Vec<WindowStats>,
+}
+
+/// The server's memory over one window of the measured run.
+#[derive(Debug, Clone, Serialize)]
+pub struct ServerWindow {
+    /// Start, seconds into the measured run.
+    pub start_s: f64,
+    /// End, seconds.
+    pub end_s: f64,
+    /// Largest `fogcast_resident_memory_bytes` scraped in the window (once a second), MiB.
+    pub resident_memory_mib: Option<f64>,
+}
+
+/// The baseline phase: only the unthrottled viewers, before the throttled ones join.
+#[derive(Debug, Clone, Serialize)]
+pub struct Baseline {
+    /// Length, seconds.
+    pub seconds: f64,
+    /// The server's render-loop fps meanwhile (on a CPU renderer the throttled viewers'
+    /// views slow it down too, whatever their links).
+    pub server_fps: f64,
+    /// Sessions measured (the unthrottled ones).
+    pub sessions: usize,
+    /// Their numbers.
+    pub summary: PointSummary,
+}
+
+/// Sessions loadgen opened against what the server counted.
+#[derive(Debug, Clone, Serialize)]
+pub struct SessionAccounting {
+    /// Sessions loadgen opened (welcomes received), churn included.
+    pub opened_by_loadgen: u64,
+    /// Failed reopen attempts (not sessions).
+    pub reopen_failures: u64,
+    /// Growth of `fogcast_sessions_total` from before the first hello to after the
+    /// server let the last session go.
+    pub server_opened: u64,
+    /// Growth of `fogcast_sessions_closed_total`, when the server has it.
+    pub server_closed: Option<u64>,
+    /// `fogcast_sessions` before the point.
+    pub open_before: u64,
+    /// `fogcast_sessions` after the point.
+    pub open_after: u64,
+    /// Every session opened is one the server counted, and it closed them all.
+    pub accounted: bool,
 }
 
 /// The server's side of a sweep point: `/metrics` deltas over the measured window.
@@ -433,6 +703,14 @@ pub struct PointResult {
     pub sizes: Vec<SizeResult>,
     /// The server's numbers.
     pub server: ServerStats,
+    /// Unthrottled and throttled viewers apart (those that had viewers), with windows.
+    pub classes: Vec<ClassResult>,
+    /// The server's memory per window.
+    pub server_windows: Vec<ServerWindow>,
+    /// The baseline phase (`--baseline-s`).
+    pub baseline: Option<Baseline>,
+    /// Sessions opened and closed, loadgen's count against the server's.
+    pub sessions_accounting: SessionAccounting,
     /// Each viewer.
     pub per_viewer: Vec<ViewerStats>,
 }
@@ -457,10 +735,16 @@ pub struct LoadgenReport {
     pub duration_s: f64,
     /// One per sweep point, in the order run.
     pub points: Vec<PointResult>,
+    /// The `--check-*` results (empty without checks).
+    pub checks: Vec<CheckResult>,
 }
 
-/// Longest wait for the server to let the previous point's sessions go.
-const DRAIN_TIMEOUT: Duration = Duration::from_secs(30);
+impl LoadgenReport {
+    /// The checks that failed.
+    pub fn failed_checks(&self) -> Vec<&CheckResult> {
+        self.checks.iter().filter(|c| !c.passed).collect()
+    }
+}
 
 /// Runs the sweep against the server at `config.url`; `progress` gets one line at a time.
 pub async fn run(
@@ -494,7 +778,7 @@ pub async fn run(
     }
     let paths = Arc::new(paths);
     progress(&format!(
-        "loadgen: {} — scene {:?}, up to {} views; sweep {:?} views, {} s each after {} s warm-up, poses at {} Hz, {} {:?} q{}",
+        "loadgen: {} — scene {:?}, up to {} views; sweep {:?} views, {} s each after {} s warm-up, poses at {} Hz, {} {:?} {} q{}{}",
         config.url,
         health.scene,
         health.max_viewers,
@@ -504,11 +788,13 @@ pub async fn run(
         config.pose_hz,
         size_list(&config.sizes),
         config.layout,
-        config.quality
+        config.codec.as_str(),
+        config.quality,
+        streaming_summary(config)
     ));
     let mut points = Vec::new();
     for &n in &config.viewers {
-        let point = run_point(config, &target, &paths, n, progress)
+        let point = point::run_point(config, &target, &paths, n, progress)
             .await
             .with_context(|| format!("sweep point of {n} views"))?;
         points.push(point);
@@ -521,191 +807,28 @@ pub async fn run(
         camera_paths: paths.describe(),
         machine: machine(),
         duration_s: started.elapsed().as_secs_f64(),
+        checks: checks::evaluate(&config.checks, &points),
         points,
     })
 }
 
-async fn run_point(
-    config: &LoadgenConfig,
-    target: &Target,
-    paths: &Arc<Paths>,
-    views: usize,
-    progress: &(dyn Fn(&str) + Sync),
-) -> anyhow::Result<PointResult> {
-    let per = config.views_per_session();
-    let sessions = views / per;
-    let baseline = scrape::metrics(&target.authority)
-        .await?
-        .get("fogcast_sessions", "");
-    let size_of: Vec<FrameSize> = (0..sessions).map(|i| config.size_of_session(i)).collect();
-    progress(&format!(
-        "loadgen: {views} views: opening {sessions} sessions ({})",
-        sessions_per_size(&config.sizes, &size_of)
-    ));
-    let opened_at = Instant::now();
-    let mut opened = Vec::with_capacity(sessions);
-    for (i, size) in size_of.iter().enumerate() {
-        let (ws, welcome) = client::open(target, &config.hello(*size))
-            .await
-            .with_context(|| format!("viewer {i} of {sessions} ({size})"))?;
-        opened.push((ws, welcome));
+/// ", h264, acks, raw every 5, 1 viewer at 1000 kbit/s, …" for the progress line.
+fn streaming_summary(c: &LoadgenConfig) -> String {
+    let mut parts = vec![if c.ack { "acks" } else { "no acks" }.to_string()];
+    if let Some(n) = c.raw_every {
+        parts.push(format!("PSNR against a raw frame every {n}"));
     }
-    let slots_per_session = opened.first().map_or(1, |(_, w)| w.poses.len());
-    let (stop_tx, stop_rx) = watch::channel(false);
-    let epoch = Instant::now();
-    let mut tasks = Vec::with_capacity(sessions);
-    let mut lives = Vec::with_capacity(sessions);
-    let mut meta = Vec::with_capacity(sessions);
-    for (i, (ws, welcome)) in opened.into_iter().enumerate() {
-        let live = Arc::new(Live::default());
-        let flight = Flight {
-            paths: paths.clone(),
-            first_slot: i * slots_per_session,
-            slots: sessions * slots_per_session,
-            pose_hz: config.pose_hz,
-            epoch,
-        };
-        meta.push((welcome.session, welcome.views));
-        lives.push(live.clone());
-        tasks.push(tokio::spawn(client::stream(
-            ws,
-            welcome,
-            flight,
-            live,
-            stop_rx.clone(),
-        )));
+    if let Some(k) = c.throttle_kbps {
+        parts.push(format!("{} viewer(s) per point at {k} kbit/s", c.throttled));
     }
-    // Stops the viewers whatever happens below (an error, a timeout).
-    let _stop_guard = StopOnDrop(stop_tx.clone());
-
-    let deadline = opened_at + Duration::from_secs_f64(config.first_frame_timeout_s);
-    loop {
-        if let Some((i, why)) = lives
-            .iter()
-            .enumerate()
-            .find_map(|(i, l)| Some((i, l.ended()?)))
-        {
-            anyhow::bail!("viewer {i} ended before its first frames: {why}");
-        }
-        if lives.iter().all(|l| l.frames.load(Relaxed) > 0) {
-            break;
-        }
-        if Instant::now() > deadline {
-            let waiting: Vec<usize> = (0..sessions)
-                .filter(|&i| lives[i].frames.load(Relaxed) == 0)
-                .collect();
-            anyhow::bail!(
-                "viewers {waiting:?} got no frame within {} s (--first-frame-timeout)",
-                config.first_frame_timeout_s
-            );
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
+    if let Some(b) = c.baseline_s {
+        parts.push(format!("{b} s baseline"));
     }
-    let first_frames_s = opened_at.elapsed().as_secs_f64();
-    progress(&format!(
-        "loadgen: {views} views: every viewer has frames after {first_frames_s:.1} s; warming up {} s",
-        config.warmup_s
-    ));
-    tokio::time::sleep(Duration::from_secs_f64(config.warmup_s)).await;
-
-    let before = scrape::metrics(&target.authority).await?;
-    let t0 = Instant::now();
-    let window = Duration::from_secs_f64(config.seconds);
-    let mut last: Vec<u64> = lives.iter().map(|l| l.frames.load(Relaxed)).collect();
-    let mut second = 0;
-    while t0.elapsed() < window {
-        let next = t0 + Duration::from_secs(second + 1);
-        let wake = next.min(t0 + window);
-        tokio::time::sleep_until(wake.into()).await;
-        second += 1;
-        let now: Vec<u64> = lives.iter().map(|l| l.frames.load(Relaxed)).collect();
-        let mut got: Vec<u64> = now.iter().zip(&last).map(|(a, b)| a - b).collect();
-        got.sort_unstable();
-        last = now;
-        progress(&format!(
-            "loadgen: {views} views: {:>4.0} s  frames in the last second per viewer: min {} median {} max {}",
-            t0.elapsed().as_secs_f64(),
-            got[0],
-            got[got.len() / 2],
-            got[got.len() - 1]
-        ));
+    if let Some(s) = c.churn_s {
+        parts.push(format!("sessions reopened every {s} s"));
     }
-    let t1 = Instant::now();
-    let after = scrape::metrics(&target.authority).await?;
-    let load_average_1m = crate::report::load_average();
-
-    let _ = stop_tx.send(true);
-    let mut per_viewer = Vec::with_capacity(sessions);
-    let mut latencies = Vec::with_capacity(sessions);
-    for (i, ((task, live), (session, views_of))) in
-        tasks.into_iter().zip(&lives).zip(meta).enumerate()
-    {
-        let rec = task.await.context("a viewer task failed")?;
-        latencies.push(stats::latencies(&rec, t0, t1));
-        per_viewer.push(stats::viewer(
-            i,
-            session,
-            (views_of, size_of[i]),
-            &rec,
-            (t0, t1),
-            live.ended(),
-        ));
-    }
-    let summary = stats::summary(&per_viewer, latencies.concat());
-    let sizes = stats::per_size(&config.sizes, &per_viewer, &latencies);
-    let server = scrape::server_stats(&before, &after);
-    progress(&format!(
-        "loadgen: {views} views: {}, server {:.1} fps, {:.1} render calls and {:.0} grid rays per frame{}",
-        describe(&summary),
-        server.fps,
-        server.render_calls_per_frame,
-        server.grid_rays_per_frame,
-        match (summary.every_viewer_every_second, summary.every_viewer_served_throughout) {
-            (true, _) => "",
-            (false, true) => "; some second had no frame (the server rendered under 1 fps then), but every viewer got every frame",
-            (false, false) => "; SOME VIEWER WAS NOT SERVED THROUGHOUT",
-        }
-    ));
-    if sizes.len() > 1 {
-        for s in &sizes {
-            progress(&format!(
-                "loadgen: {views} views:   {} ({}): {}",
-                s.size,
-                sessions_count(s.sessions),
-                describe(&s.summary)
-            ));
-        }
-    }
-
-    // Let the server release the sessions before the next point asks for views.
-    let drained = tokio::time::timeout(DRAIN_TIMEOUT, async {
-        loop {
-            match scrape::metrics(&target.authority).await {
-                Ok(m) if m.get("fogcast_sessions", "") <= baseline => return Ok(()),
-                Ok(_) => tokio::time::sleep(Duration::from_millis(50)).await,
-                Err(e) => return Err(e),
-            }
-        }
-    })
-    .await;
-    match drained {
-        Ok(r) => r?,
-        Err(_) => anyhow::bail!(
-            "the server still had sessions {} s after the viewers left",
-            DRAIN_TIMEOUT.as_secs()
-        ),
-    }
-    Ok(PointResult {
-        viewers: views,
-        sessions,
-        first_frames_s,
-        window_s: t1.duration_since(t0).as_secs_f64(),
-        load_average_1m,
-        summary,
-        sizes,
-        server,
-        per_viewer,
-    })
+    parts.push(format!("{} window(s)", c.windows()));
+    format!(", {}", parts.join(", "))
 }
 
 /// "fps per viewer (min), latency percentiles, bandwidth per viewer" of a summary.
@@ -746,23 +869,6 @@ pub(crate) fn size_list(sizes: &[FrameSize]) -> String {
 /// "1 session", "2 sessions".
 pub(crate) fn sessions_count(n: usize) -> String {
     format!("{n} session{}", if n == 1 { "" } else { "s" })
-}
-
-/// "320x180: 2, 480x270: 1" — the sessions of each size, in the order of `sizes`.
-fn sessions_per_size(sizes: &[FrameSize], size_of: &[FrameSize]) -> String {
-    sizes
-        .iter()
-        .map(|s| format!("{s}: {}", size_of.iter().filter(|t| *t == s).count()))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-struct StopOnDrop(watch::Sender<bool>);
-
-impl Drop for StopOnDrop {
-    fn drop(&mut self) {
-        let _ = self.0.send(true);
-    }
 }
 
 /// "CPU model, N logical cores" of this machine.

@@ -1,5 +1,6 @@
 //! The loadgen report: loadgen.json (everything), loadgen.csv (one row per viewer per
-//! point), loadgen.md (tables; per frame size too when the sweep mixes sizes) and PNG
+//! point), loadgen.md (tables; per frame size too when the sweep mixes sizes; viewer
+//! classes, windows, image quality, sessions and checks when the run has them) and PNG
 //! plots of fps, latency and the largest point's per-second timeline.
 
 use super::{size_list, Latency, LoadgenReport, PointResult, PointSummary};
@@ -70,6 +71,14 @@ fn viewer_table(points: &[PointResult]) -> Table {
         "longest_gap_ms",
         "seconds_without_frames",
         "served_throughout",
+        "class",
+        "encoded_bytes_per_frame",
+        "key_frames",
+        "psnr_mean_db",
+        "psnr_min_db",
+        "psnr_frames",
+        "decode_errors",
+        "sessions_opened",
         "frames_per_second",
     ]);
     for p in points {
@@ -91,6 +100,21 @@ fn viewer_table(points: &[PointResult]) -> Table {
                 format!("{:.0}", v.max_gap_ms),
                 v.seconds_without_frames.to_string(),
                 v.served_throughout.to_string(),
+                if v.throttled {
+                    "throttled"
+                } else {
+                    "unthrottled"
+                }
+                .into(),
+                format!("{:.0}", v.encoded_bytes_per_frame),
+                v.key_frames.to_string(),
+                v.quality
+                    .map_or_else(|| "–".into(), |q| format!("{:.2}", q.psnr_mean_db)),
+                v.quality
+                    .map_or_else(|| "–".into(), |q| format!("{:.2}", q.psnr_min_db)),
+                v.quality.map_or(0, |q| q.compared).to_string(),
+                v.decode_errors.to_string(),
+                v.sessions_opened.to_string(),
                 v.timeline
                     .iter()
                     .map(u32::to_string)
@@ -184,6 +208,7 @@ fn markdown(r: &LoadgenReport) -> String {
         t.push(row);
     }
     md += &t.to_markdown();
+    md += &streaming_sections(r);
 
     if mixed {
         md += "\n## Per frame size\n\nThe viewers of each size within each point: fps and bandwidth per viewer, \
@@ -346,7 +371,228 @@ fn markdown(r: &LoadgenReport) -> String {
     }
     md += "\n![fps vs viewers](loadgen_fps.png)\n\n![latency vs viewers](loadgen_latency.png)\n\n\
            ![frames per second of the largest point](loadgen_timeline.png)\n";
+    if r.points.iter().any(|p| p.server_windows.len() > 1) {
+        md += "\n![p95 latency per window](loadgen_windows.png)\n";
+    }
     md
+}
+
+/// The streaming scenario's sections (issue 17): viewer classes and baseline, windows
+/// over time, image quality, sessions, checks — each only when the run has it.
+fn streaming_sections(r: &LoadgenReport) -> String {
+    let c = &r.config;
+    let mut md = format!(
+        "\nCodec {}, acks {}{}{}.\n",
+        c.codec.as_str(),
+        match (c.ack, refused(r)) {
+            (false, _) => "off",
+            (true, false) => "on",
+            (true, true) => "on (but the server did not know them: `unknown_type`; those viewers stopped acking)",
+        },
+        c.max_kbps
+            .map_or_else(String::new, |k| format!(", at most {k} kbit/s")),
+        c.churn_s.map_or_else(String::new, |s| format!(
+            ", every session closed and reopened every {s} s (staggered)"
+        )),
+    );
+    let throttled = r
+        .points
+        .iter()
+        .any(|p| p.classes.len() > 1 || p.baseline.is_some());
+    if throttled {
+        md += &format!(
+            "\n## Viewer classes\n\nThe first {} viewer(s) of each point read their socket at {} kbit/s (*throttled*); \
+             *baseline* is the unthrottled viewers alone, measured before the throttled ones joined.\n\n",
+            c.throttled,
+            c.throttle_kbps.map_or_else(|| "–".into(), |k| k.to_string())
+        );
+        let mut t = Table::new(&[
+            "views",
+            "class",
+            "sessions",
+            "fps/viewer mean",
+            "min",
+            "latency p50 ms",
+            "p95 ms",
+            "p99 ms",
+            "KiB/s per viewer",
+            "dropped",
+            "bytes/frame",
+        ]);
+        for p in &r.points {
+            let rows = p
+                .baseline
+                .iter()
+                .map(|b| {
+                    (
+                        "baseline (unthrottled alone)".to_string(),
+                        b.sessions,
+                        &b.summary,
+                    )
+                })
+                .chain(
+                    p.classes
+                        .iter()
+                        .map(|k| (k.class.as_str().to_string(), k.sessions, &k.summary)),
+                );
+            for (name, sessions, s) in rows {
+                t.push(vec![
+                    p.viewers.to_string(),
+                    name,
+                    sessions.to_string(),
+                    f1(s.fps_mean),
+                    f1(s.fps_min),
+                    lat(&s.latency, |l| l.p50_ms),
+                    lat(&s.latency, |l| l.p95_ms),
+                    lat(&s.latency, |l| l.p99_ms),
+                    kib(s.bytes_per_s_per_viewer),
+                    s.dropped_server_total.to_string(),
+                    format!("{:.0}", s.encoded_bytes_per_frame),
+                ]);
+            }
+        }
+        md += &t.to_markdown();
+    }
+    if r.points.iter().any(|p| p.server_windows.len() > 1) {
+        md += &format!(
+            "\n## Over time\n\nThe measured run in windows of about {} s: each class's mean fps per viewer and pooled \
+             p95 latency, and the server's largest resident memory, per window (creep shows as the last window \
+             against the first).\n\n",
+            c.window_s
+        );
+        let mut t = Table::new(&[
+            "views",
+            "window s",
+            "class",
+            "fps/viewer",
+            "p95 ms",
+            "samples",
+            "server RSS MiB",
+        ]);
+        for p in &r.points {
+            for (i, w) in p.server_windows.iter().enumerate() {
+                for k in &p.classes {
+                    let Some(kw) = k.windows.get(i) else { continue };
+                    t.push(vec![
+                        p.viewers.to_string(),
+                        format!("{:.0}–{:.0}", w.start_s, w.end_s),
+                        k.class.as_str().into(),
+                        f1(kw.fps_mean),
+                        opt_ms(kw.latency_p95_ms),
+                        kw.latency_samples.to_string(),
+                        w.resident_memory_mib
+                            .map_or_else(|| "–".into(), |m| format!("{m:.0}")),
+                    ]);
+                }
+            }
+        }
+        md += &t.to_markdown();
+    }
+    if r.points
+        .iter()
+        .any(|p| p.summary.quality.is_some() || p.summary.decode_errors > 0)
+    {
+        md += &format!(
+            "\n## Image quality\n\nEach viewer decoded its {} frames and compared every one that had a raw frame \
+             (one in {}) with it: PSNR over R, G and B of every pixel (identical pictures count as {} dB); \
+             bytes per frame are the encoded payload alone.\n\n",
+            c.codec.as_str(),
+            c.raw_every.map_or_else(|| "–".into(), |n| n.to_string()),
+            crate::loadgen::quality::PSNR_CAP_DB
+        );
+        let mut t = Table::new(&[
+            "views",
+            "viewer",
+            "compared",
+            "PSNR mean dB",
+            "PSNR min dB",
+            "bytes/frame",
+            "key frames",
+            "decode errors",
+        ]);
+        for p in &r.points {
+            for v in &p.per_viewer {
+                t.push(vec![
+                    p.viewers.to_string(),
+                    v.index.to_string(),
+                    v.quality.map_or(0, |q| q.compared).to_string(),
+                    v.quality
+                        .map_or_else(|| "–".into(), |q| format!("{:.2}", q.psnr_mean_db)),
+                    v.quality
+                        .map_or_else(|| "–".into(), |q| format!("{:.2}", q.psnr_min_db)),
+                    format!("{:.0}", v.encoded_bytes_per_frame),
+                    v.key_frames.to_string(),
+                    v.decode_errors.to_string(),
+                ]);
+            }
+            let s = &p.summary;
+            t.push(vec![
+                p.viewers.to_string(),
+                "all".into(),
+                s.quality.map_or(0, |q| q.compared).to_string(),
+                s.quality
+                    .map_or_else(|| "–".into(), |q| format!("{:.2}", q.psnr_mean_db)),
+                s.quality
+                    .map_or_else(|| "–".into(), |q| format!("{:.2}", q.psnr_min_db)),
+                format!("{:.0}", s.encoded_bytes_per_frame),
+                s.key_frames.to_string(),
+                s.decode_errors.to_string(),
+            ]);
+        }
+        md += &t.to_markdown();
+    }
+    md += "\n## Sessions\n\nSessions loadgen opened (churn included) against the server's `fogcast_sessions_total` \
+           (and `fogcast_sessions_closed_total` where the server has it) from before the first hello to after the \
+           server let the last session go, and its open sessions before and after.\n\n";
+    let mut t = Table::new(&[
+        "views",
+        "opened by loadgen",
+        "reopen failures",
+        "server opened",
+        "server closed",
+        "open before",
+        "open after",
+        "accounted",
+    ]);
+    for p in &r.points {
+        let a = &p.sessions_accounting;
+        t.push(vec![
+            p.viewers.to_string(),
+            a.opened_by_loadgen.to_string(),
+            a.reopen_failures.to_string(),
+            a.server_opened.to_string(),
+            a.server_closed
+                .map_or_else(|| "–".into(), |n| n.to_string()),
+            a.open_before.to_string(),
+            a.open_after.to_string(),
+            if a.accounted {
+                "yes".into()
+            } else {
+                "**no**".into()
+            },
+        ]);
+    }
+    md += &t.to_markdown();
+    if !r.checks.is_empty() {
+        md += "\n## Checks\n\n";
+        for k in &r.checks {
+            md += &format!(
+                "- {} `{}` at {} views: {}\n",
+                if k.passed { "pass" } else { "**FAIL**" },
+                k.check,
+                k.views,
+                k.detail
+            );
+        }
+    }
+    md
+}
+
+/// Whether some viewer's acks were refused by a server from before acks.
+fn refused(r: &LoadgenReport) -> bool {
+    r.points
+        .iter()
+        .any(|p| p.per_viewer.iter().any(|v| v.acks_refused))
 }
 
 /// Writes the plots; returns their file names.
@@ -454,6 +700,37 @@ fn plots(r: &LoadgenReport, out: &Path) -> anyhow::Result<Vec<&'static str>> {
             false,
         )?;
         names.push("loadgen_timeline.png");
+    }
+    // Creep: p95 latency per window of each class of the largest point with windows.
+    let windowed = r
+        .points
+        .iter()
+        .filter(|p| p.server_windows.len() > 1)
+        .max_by_key(|p| p.viewers);
+    if let Some(p) = windowed {
+        let lines: Vec<Series> = p
+            .classes
+            .iter()
+            .map(|c| Series {
+                name: format!("{} p95", c.class.as_str()),
+                points: c
+                    .windows
+                    .iter()
+                    .filter_map(|w| Some(((w.start_s + w.end_s) / 2.0, w.latency_p95_ms?)))
+                    .collect(),
+            })
+            .collect();
+        plot(
+            &out.join("loadgen_windows.png"),
+            &format!("p95 pose-to-frame latency per window, {} views", p.viewers),
+            "seconds into the measured run (window middle)",
+            "p95 latency, ms",
+            &lines,
+            true,
+            false,
+            false,
+        )?;
+        names.push("loadgen_windows.png");
     }
     Ok(names)
 }

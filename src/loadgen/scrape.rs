@@ -141,6 +141,13 @@ impl Scrape {
             .sum()
     }
 
+    /// Whether the server reports metric `name` at all (with any labels).
+    pub(crate) fn has(&self, name: &str) -> bool {
+        self.samples
+            .keys()
+            .any(|k| k.split_once('{').map_or(k.as_str(), |(n, _)| n) == name)
+    }
+
     /// Values of label `label` over the samples of `name`.
     fn label_values(&self, name: &str, label: &str) -> Vec<String> {
         let prefix = format!("{name}{{{label}=\"");

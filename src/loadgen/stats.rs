@@ -1,7 +1,9 @@
 //! Per-viewer and per-point numbers from the frame records of one measurement window.
 
 use super::client::ViewerRecord;
-use super::{FrameSize, Latency, PointSummary, SizeResult, ViewerStats};
+use super::{
+    FrameSize, Latency, PointSummary, Quality, ServerWindow, SizeResult, ViewerStats, WindowStats,
+};
 use crate::protocol::FrameHeader;
 use std::time::{Duration, Instant};
 
@@ -72,23 +74,27 @@ pub(crate) fn viewer(
     let bytes: u64 = inside.iter().map(|f| u64::from(f.bytes)).sum();
 
     // Server-side drops (the header's per-session counter) and render-loop frames this
-    // viewer never got (gaps in the shared frame number), both over the window.
-    let dropped_server = match (before.or(inside.first().copied()), inside.last()) {
-        (Some(a), Some(b)) => u64::from(b.header.dropped.saturating_sub(a.header.dropped)),
-        _ => 0,
-    };
+    // viewer never got (gaps in the shared frame number), both over the window. A new
+    // session (churn) starts its counter at 0, and the frames between two sessions are
+    // not missed.
+    let mut dropped_server = 0u64;
     let mut missed_frames = 0u64;
     let mut prev = before;
     let mut max_gap = Duration::ZERO;
     let mut last_at = t0;
     for f in &inside {
-        if let Some(p) = prev {
-            missed_frames += u64::from(
-                f.header
-                    .frame
-                    .saturating_sub(p.header.frame)
-                    .saturating_sub(1),
-            );
+        match prev {
+            Some(p) if p.session_no == f.session_no => {
+                missed_frames += u64::from(
+                    f.header
+                        .frame
+                        .saturating_sub(p.header.frame)
+                        .saturating_sub(1),
+                );
+                dropped_server += u64::from(f.header.dropped.saturating_sub(p.header.dropped));
+            }
+            Some(_) => dropped_server += u64::from(f.header.dropped),
+            None => {}
         }
         max_gap = max_gap.max(f.at.duration_since(last_at));
         last_at = f.at;
@@ -114,6 +120,13 @@ pub(crate) fn viewer(
         })
     };
     let seconds_without_frames = timeline.iter().filter(|n| **n == 0).count();
+    let payload: u64 = inside.iter().map(|f| u64::from(f.payload_bytes)).sum();
+    let psnr: Vec<f64> = rec
+        .psnr
+        .iter()
+        .filter(|(at, _)| *at >= t0 && *at < t1)
+        .map(|(_, db)| *db)
+        .collect();
     let served_throughout =
         ended_early.is_none() && frames > 0 && (seconds_without_frames == 0 || missed_frames == 0);
     ViewerStats {
@@ -144,16 +157,62 @@ pub(crate) fn viewer(
         header_render_ms: header_ms(|h| h.render_us),
         header_encode_ms: header_ms(|h| h.encode_us),
         bad_frames: rec.bad_frames,
+        throttled: false,
+        encoded_bytes_per_frame: if frames > 0 {
+            payload as f64 / frames as f64
+        } else {
+            0.0
+        },
+        key_frames: inside.iter().filter(|f| f.header.key).count() as u64,
+        raw_frames: rec.raw_frames,
+        decode_errors: rec.decode_errors,
+        quality: quality(&psnr),
+        sessions_opened: rec.sessions_opened,
+        reopen_failures: rec.reopen_failures,
+        bandwidth_welcomes: rec.bandwidth_welcomes,
+        acks_refused: rec.acks_refused,
         server_errors: rec.server_errors.clone(),
         ended_early,
         served_throughout,
     }
 }
 
+/// Mean and minimum of PSNR samples (`None` without samples).
+fn quality(psnr_db: &[f64]) -> Option<Quality> {
+    (!psnr_db.is_empty()).then(|| Quality {
+        compared: psnr_db.len(),
+        psnr_mean_db: psnr_db.iter().sum::<f64>() / psnr_db.len() as f64,
+        psnr_min_db: psnr_db.iter().copied().fold(f64::INFINITY, f64::min),
+    })
+}
+
+/// Viewers' qualities pooled: the mean over every compared frame, the lowest of all.
+fn pooled_quality(viewers: &[ViewerStats]) -> Option<Quality> {
+    let qs: Vec<Quality> = viewers.iter().filter_map(|v| v.quality).collect();
+    let compared: usize = qs.iter().map(|q| q.compared).sum();
+    (compared > 0).then(|| Quality {
+        compared,
+        psnr_mean_db: qs
+            .iter()
+            .map(|q| q.psnr_mean_db * q.compared as f64)
+            .sum::<f64>()
+            / compared as f64,
+        psnr_min_db: qs
+            .iter()
+            .map(|q| q.psnr_min_db)
+            .fold(f64::INFINITY, f64::min),
+    })
+}
+
 /// The point's numbers over all its viewers; `pooled_ms` are every viewer's latencies.
 pub(crate) fn summary(viewers: &[ViewerStats], pooled_ms: Vec<f64>) -> PointSummary {
     let fps: Vec<f64> = viewers.iter().map(|v| v.fps).collect();
     let n = fps.len().max(1) as f64;
+    let frames: u64 = viewers.iter().map(|v| v.frames).sum();
+    let payload: f64 = viewers
+        .iter()
+        .map(|v| v.encoded_bytes_per_frame * v.frames as f64)
+        .sum();
     PointSummary {
         fps_mean: fps.iter().sum::<f64>() / n,
         fps_min: fps
@@ -177,7 +236,85 @@ pub(crate) fn summary(viewers: &[ViewerStats], pooled_ms: Vec<f64>) -> PointSumm
             && viewers.iter().all(|v| v.served_throughout),
         viewers_ended_early: viewers.iter().filter(|v| v.ended_early.is_some()).count(),
         bad_frames: viewers.iter().map(|v| v.bad_frames).sum(),
+        encoded_bytes_per_frame: if frames > 0 {
+            payload / frames as f64
+        } else {
+            0.0
+        },
+        key_frames: viewers.iter().map(|v| v.key_frames).sum(),
+        decode_errors: viewers.iter().map(|v| v.decode_errors).sum(),
+        quality: pooled_quality(viewers),
     }
+}
+
+/// `[t0, t1)` cut into `n` equal windows: (start, end) of each.
+fn cut(t0: Instant, t1: Instant, n: usize) -> Vec<(Instant, Instant)> {
+    let len = t1.duration_since(t0).div_f64(n.max(1) as f64);
+    (0..n.max(1))
+        .map(|i| {
+            let a = t0 + len.mul_f64(i as f64);
+            let b = if i + 1 == n.max(1) {
+                t1
+            } else {
+                t0 + len.mul_f64((i + 1) as f64)
+            };
+            (a, b)
+        })
+        .collect()
+}
+
+/// Per window of `[t0, t1)` (`n` equal ones), over the viewers `recs`: their mean fps
+/// and the 95th percentile of their pooled latencies.
+pub(crate) fn windows(
+    recs: &[&ViewerRecord],
+    (t0, t1): (Instant, Instant),
+    n: usize,
+) -> Vec<WindowStats> {
+    cut(t0, t1, n)
+        .into_iter()
+        .map(|(a, b)| {
+            let len_s = b.duration_since(a).as_secs_f64().max(1e-9);
+            let fps_sum: f64 = recs
+                .iter()
+                .map(|r| r.frames.iter().filter(|f| f.at >= a && f.at < b).count() as f64 / len_s)
+                .sum();
+            let pooled: Vec<f64> = recs.iter().flat_map(|r| latencies(r, a, b)).collect();
+            let l = latency(pooled);
+            WindowStats {
+                start_s: a.duration_since(t0).as_secs_f64(),
+                end_s: b.duration_since(t0).as_secs_f64(),
+                fps_mean: fps_sum / recs.len().max(1) as f64,
+                latency_p95_ms: l.map(|l| l.p95_ms),
+                latency_samples: l.map_or(0, |l| l.samples),
+            }
+        })
+        .collect()
+}
+
+/// Per window of `[t0, t1)` (`n` equal ones): the largest resident memory sample in it
+/// (samples at the windows' edges count for both).
+pub(crate) fn server_windows(
+    rss_bytes: &[(Instant, f64)],
+    (t0, t1): (Instant, Instant),
+    n: usize,
+) -> Vec<ServerWindow> {
+    // Scrapes land a little after the second they were taken for.
+    let slack = Duration::from_millis(500);
+    cut(t0, t1, n)
+        .into_iter()
+        .map(|(a, b)| {
+            let max = rss_bytes
+                .iter()
+                .filter(|(at, v)| *at + slack >= a && *at <= b + slack && *v > 0.0)
+                .map(|(_, v)| *v)
+                .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+            ServerWindow {
+                start_s: a.duration_since(t0).as_secs_f64(),
+                end_s: b.duration_since(t0).as_secs_f64(),
+                resident_memory_mib: max.map(|v| v / (1024.0 * 1024.0)),
+            }
+        })
+        .collect()
 }
 
 /// The numbers of each frame size's viewers (in the order of `sizes`, those that had
@@ -224,6 +361,8 @@ mod tests {
         FrameRecord {
             at,
             bytes: 1000,
+            payload_bytes: 960,
+            session_no: 0,
             header: FrameHeader {
                 layout: Layout::Mono,
                 views: 1,
@@ -352,5 +491,58 @@ mod tests {
         assert_eq!(small.summary.frames_total, 6);
         assert_eq!(small.summary.latency.unwrap().samples, 2);
         assert_eq!(large.summary.latency.unwrap().p50_ms, 500.0);
+    }
+
+    #[test]
+    fn windows_show_creep_and_sessions_restart_their_counters() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        // Two windows of 1 s: 4 frames 10 ms after their poses, then 2 frames 300 ms after.
+        let mut frames: Vec<FrameRecord> = (0..4)
+            .map(|i| frame(at(100 + 200 * i + 10), i as u32 + 1, i as u32 + 1, 0))
+            .collect();
+        frames.push(frame(at(1400), 5, 5, 2));
+        // A new session: its drop counter starts again; its first frame 1 after.
+        let mut f = frame(at(1800), 9, 6, 1);
+        f.session_no = 1;
+        frames.push(f);
+        let rec = ViewerRecord {
+            pose_sent: [100, 300, 500, 700, 1100, 1500].map(at).to_vec(),
+            frames,
+            sessions_opened: 2,
+            psnr: vec![(at(150), 40.0), (at(900), 30.0), (at(2500), 10.0)],
+            ..ViewerRecord::default()
+        };
+        let w = windows(&[&rec], (at(0), at(2000)), 2);
+        assert_eq!(w.len(), 2);
+        assert!((w[0].fps_mean - 4.0).abs() < 1e-9 && (w[1].fps_mean - 2.0).abs() < 1e-9);
+        assert_eq!(w[0].latency_p95_ms, Some(10.0));
+        assert_eq!(
+            (w[1].latency_p95_ms, w[1].latency_samples),
+            (Some(300.0), 2)
+        );
+        let v = viewer(0, 1, (1, SIZE), &rec, (at(0), at(2000)), None);
+        // Session 0: 0 → 2 dropped; session 1 starts at 1; frames 6–8 fall between sessions.
+        assert_eq!((v.dropped_server, v.missed_frames), (3, 0));
+        assert_eq!((v.sessions_opened, v.key_frames), (2, 6));
+        assert!((v.encoded_bytes_per_frame - 960.0).abs() < 1e-9);
+        let q = v.quality.expect("two PSNR samples in the window");
+        assert_eq!((q.compared, q.psnr_min_db), (2, 30.0));
+        assert!((q.psnr_mean_db - 35.0).abs() < 1e-9);
+        let s = summary(&[v.clone(), v], vec![]);
+        assert_eq!(s.quality.map(|q| q.compared), Some(4));
+        let rss = [
+            (at(0), 100.0),
+            (at(400), 300.0),
+            (at(1500), 200.0),
+            (at(2000), 0.0),
+        ];
+        let sw = server_windows(&rss, (at(0), at(2000)), 2);
+        assert_eq!(
+            sw.iter()
+                .map(|w| w.resident_memory_mib.map(|m| m * 1048576.0))
+                .collect::<Vec<_>>(),
+            vec![Some(300.0), Some(200.0)]
+        );
     }
 }
