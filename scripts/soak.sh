@@ -3,11 +3,15 @@
 # (started with --debug-raw-frames, so loadgen can compare encoded frames with raw ones),
 # reports under out/soak/ (docs/loadtest.md, "Streaming scenarios and make soak"):
 #
-#   a. codec quality: one 640x360 viewer, JPEG then H.264, --raw-every 5, SOAK_QUALITY_S
-#      (60) s each; prints bytes per frame and PSNR of both and their ratio;
-#   b. a slow client: 4 unthrottled H.264 viewers at 320x180 and one reading at 1000
-#      kbit/s, SOAK_THROTTLE_S (300) s after a SOAK_BASELINE_S (30) s baseline of the
-#      four alone; checks p95 latency < 500 ms, creep <= 1.2, unthrottled fps within 10 %;
+#   a. codec quality: one 640x360 viewer walking colonnade's camera loop, JPEG at the
+#      default quality, then H.264 capped at each of SOAK_H264_KBPS ("150 300") kbit/s,
+#      --raw-every 5, SOAK_QUALITY_S (60) s each; prints bytes per frame and PSNR of each
+#      and the verdict: the cheapest H.264 run with at least JPEG's PSNR, bound 0.25x;
+#   b. a slow client: one viewer asking for 1280x720 JPEG at quality 95 reads at 1000
+#      kbit/s among four small unthrottled viewers, SOAK_THROTTLE_S (300) s after a
+#      SOAK_BASELINE_S (30) s baseline with all five on fast links; then the same at
+#      SOAK_TIGHT_KBPS (250) for SOAK_TIGHT_S (120) s, a link the stream does not fit;
+#      checks p95 latency < 500 ms, creep <= 1.2, unthrottled fps within 10 %;
 #   c. soak: 16 H.264 viewers at 256x144, each reopening its session every SOAK_CHURN_S
 #      (30) s, for SOAK_S (600) s; checks server memory growth <= 10 %, creep <= 1.2 and
 #      that every session opened was counted and closed.
@@ -81,34 +85,59 @@ loadgen() {
   fi
 }
 
-# a. Codec quality: the same view, JPEG then H.264.
-for codec in jpeg h264; do
-  loadgen "quality-$codec" --viewers 1 --width 640 --height 360 --codec "$codec" --raw-every 5 \
-    --seconds "$quality_s" --window-s "$quality_s" --out "$out/quality-$codec"
+# a. Codec quality: the same camera walk (each run starts at the same point of the loop),
+#    JPEG at the server's default quality, then H.264 capped at each bitrate of
+#    SOAK_H264_KBPS; the verdict is the cheapest H.264 run with at least JPEG's PSNR.
+h264_kbps=${SOAK_H264_KBPS:-150 300}
+loadgen quality-jpeg --viewers 1 --width 640 --height 360 --codec jpeg --raw-every 5 \
+  --seconds "$quality_s" --window-s "$quality_s" --out "$out/quality-jpeg"
+for kbps in $h264_kbps; do
+  loadgen "quality-h264-$kbps" --viewers 1 --width 640 --height 360 --codec h264 --max-kbps "$kbps" \
+    --raw-every 5 --seconds "$quality_s" --window-s "$quality_s" --out "$out/quality-h264-$kbps"
 done
-python3 - "$out" <<'PY' || failed+=("quality comparison")
+# shellcheck disable=SC2086 # the bitrates are a list
+python3 - "$out" $h264_kbps <<'PY' | tee "$out/quality.txt" || failed+=("quality comparison")
 import json, sys
-out = sys.argv[1]
-rows = {}
-for codec in ("jpeg", "h264"):
-    s = json.load(open(f"{out}/quality-{codec}/loadgen.json"))["points"][0]["summary"]
+out, ladder = sys.argv[1], sys.argv[2:]
+def row(name):
+    s = json.load(open(f"{out}/{name}/loadgen.json"))["points"][0]["summary"]
     q = s.get("quality") or {}
-    rows[codec] = (s["encoded_bytes_per_frame"], q.get("psnr_mean_db"), q.get("psnr_min_db"), q.get("compared", 0))
-for codec, (b, mean, low, n) in rows.items():
-    print(f"soak: {codec:>4}: {b:8.0f} bytes/frame, PSNR mean {mean if mean is None else round(mean, 2)} dB, "
-          f"min {low if low is None else round(low, 2)} dB over {n} frames")
-(jb, jq, _, _), (hb, hq, _, _) = rows["jpeg"], rows["h264"]
-if jb and hb and jq is not None and hq is not None:
-    print(f"soak: H.264/JPEG: {hb / jb:.3f}x the bytes per frame, {hq - jq:+.2f} dB PSNR")
-else:
-    sys.exit("soak: no PSNR for one of the codecs (is the server started with --debug-raw-frames?)")
+    return s["encoded_bytes_per_frame"], q.get("psnr_mean_db"), q.get("psnr_min_db"), q.get("compared", 0)
+rows = {"jpeg": row("quality-jpeg")}
+for k in ladder:
+    rows[f"h264 {k} kbit/s"] = row(f"quality-h264-{k}")
+for name, (b, mean, low, n) in rows.items():
+    if mean is None:
+        sys.exit(f"soak: no PSNR for {name} (is the server started with --debug-raw-frames?)")
+    print(f"soak: {name:>16}: {b:8.0f} bytes/frame, PSNR mean {mean:.2f} dB, min {low:.2f} dB over {n} frames")
+jb, jq = rows["jpeg"][0], rows["jpeg"][1]
+for k in ladder:
+    hb, hq = rows[f"h264 {k} kbit/s"][0], rows[f"h264 {k} kbit/s"][1]
+    print(f"soak: H.264 at {k} kbit/s / JPEG: {hb / jb:.3f}x the bytes per frame, {hq - jq:+.2f} dB PSNR")
+ok = [k for k in ladder if rows[f"h264 {k} kbit/s"][1] >= jq]
+if not ok:
+    sys.exit("soak: no H.264 run reached JPEG's PSNR")
+k = ok[0]
+ratio = rows[f"h264 {k} kbit/s"][0] / jb
+print(f"soak: verdict: H.264 at {k} kbit/s has {ratio:.3f}x JPEG's bytes per frame at equal or better PSNR (bound 0.25)")
+if ratio > 0.25:
+    sys.exit("soak: H.264 is above 0.25x JPEG's bytes at equal PSNR")
 PY
 
-# b. One slow client among four: its latency stays flat, the others keep their fps.
-loadgen throttled --viewers 5 --width 320 --height 180 --codec h264 \
+# b. One slow client among four: its latency stays flat, the others keep their fps. The
+#    throttled viewer asks for the heaviest stream (1280x720 JPEG at quality 95) and the
+#    others for small views of their own sizes; then the same at SOAK_TIGHT_KBPS (250),
+#    a link narrower than that stream on a CPU renderer, where the adaptation must act.
+mix=1280x720,256x144,240x136,272x154,224x126
+loadgen throttled --viewers 5 --mix "$mix" --codec jpeg --quality 95 \
   --throttle-kbps 1000 --throttled 1 --baseline-s "$baseline_s" --seconds "$throttle_s" \
   --window-s "$(window_of "$throttle_s" 5)" \
   --check-latency-p95-ms 500 --check-creep 1.2 --check-fps-within 0.1 --out "$out/throttled"
+tight_s=${SOAK_TIGHT_S:-120}
+loadgen throttled-tight --viewers 5 --mix "$mix" --codec jpeg --quality 95 \
+  --throttle-kbps "${SOAK_TIGHT_KBPS:-250}" --throttled 1 --baseline-s "$baseline_s" --seconds "$tight_s" \
+  --window-s "$(window_of "$tight_s" 4)" \
+  --check-latency-p95-ms 500 --check-creep 1.2 --check-fps-within 0.1 --out "$out/throttled-tight"
 
 # c. Soak: 16 churning viewers; memory, latency and sessions stay put.
 loadgen soak --viewers 16 --width 256 --height 144 --codec h264 --churn-s "$churn_s" \
@@ -120,4 +149,4 @@ if [ ${#failed[@]} -gt 0 ]; then
   echo "soak: FAILED after $took s: ${failed[*]} (reports in $out/)" >&2
   exit 1
 fi
-echo "soak: every scenario passed in $took s; reports in $out/{quality-jpeg,quality-h264,throttled,soak}/loadgen.md" >&2
+echo "soak: every scenario passed in $took s; reports in $out/{quality-*,throttled,throttled-tight,soak}/loadgen.md" >&2

@@ -34,8 +34,12 @@ fn decode(decoder: &mut openh264::decoder::Decoder, au: &[u8], w: u32, h: u32) -
         .decode(au)
         .expect("the access unit decodes")
         .expect("one picture per access unit");
-    let mut rgb = vec![0u8; (w * h * 3) as usize];
-    yuv.write_rgb8(&mut rgb);
+    use openh264::formats::YUVSource as _;
+    let rgb = fogcast::protocol::yuv420_to_rgb(
+        (yuv.y(), yuv.u(), yuv.v()),
+        yuv.strides(),
+        (w as usize, h as usize),
+    );
     image::RgbImage::from_raw(w, h, rgb).unwrap()
 }
 

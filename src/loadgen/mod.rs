@@ -27,7 +27,7 @@
 //! `--codec jpeg|h264`, and optionally measures image quality against raw frames
 //! (`--raw-every`, [`quality`]); the first `--throttled` viewers of a point read their
 //! socket at `--throttle-kbps` ([`Throttled`]) and are reported as their own class; a
-//! baseline phase (`--baseline-s`) measures the unthrottled viewers alone first; the
+//! baseline phase (`--baseline-s`) measures every viewer on a fast link first; the
 //! window is also cut into `--window-s` pieces so latency and memory creep show;
 //! `--churn-s` closes and reopens every session periodically; `--check-*` turn the
 //! numbers into pass/fail ([`Checks`]).
@@ -163,8 +163,9 @@ pub struct LoadgenConfig {
     pub window_s: f64,
     /// Every viewer closes and reopens its session this often, seconds (staggered).
     pub churn_s: Option<f64>,
-    /// Seconds of a baseline phase with only the unthrottled viewers, before the
-    /// throttled ones join and the measured window starts.
+    /// Seconds of a baseline phase with every viewer on a fast link (the same views,
+    /// so the same render cost), before the throttled ones reconnect through their slow
+    /// links and the measured window starts.
     pub baseline_s: Option<f64>,
     /// Pass/fail checks on the numbers.
     pub checks: Checks,
@@ -581,7 +582,8 @@ pub struct ServerWindow {
     pub resident_memory_mib: Option<f64>,
 }
 
-/// The baseline phase: only the unthrottled viewers, before the throttled ones join.
+/// The baseline phase: every viewer on a fast link, before the throttled ones reconnect
+/// through their slow links (its numbers are the unthrottled viewers').
 #[derive(Debug, Clone, Serialize)]
 pub struct Baseline {
     /// Length, seconds.

@@ -402,7 +402,7 @@ fn streaming_sections(r: &LoadgenReport) -> String {
     if throttled {
         md += &format!(
             "\n## Viewer classes\n\nThe first {} viewer(s) of each point read their socket at {} kbit/s (*throttled*); \
-             *baseline* is the unthrottled viewers alone, measured before the throttled ones joined.\n\n",
+             *baseline* is the unthrottled viewers measured while every viewer had a fast link, before the throttled ones reconnected through theirs.\n\n",
             c.throttled,
             c.throttle_kbps.map_or_else(|| "–".into(), |k| k.to_string())
         );
@@ -425,7 +425,7 @@ fn streaming_sections(r: &LoadgenReport) -> String {
                 .iter()
                 .map(|b| {
                     (
-                        "baseline (unthrottled alone)".to_string(),
+                        "baseline (every link fast)".to_string(),
                         b.sessions,
                         &b.summary,
                     )

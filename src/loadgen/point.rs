@@ -43,16 +43,24 @@ struct PointContext<'a> {
 impl PointContext<'_> {
     /// Opens the sessions `indices` (hello → welcome, one after the other) and starts
     /// their viewers.
+    /// Opens viewers `indices`; the first `throttled` of the point read through their
+    /// throttle when `throttle` (the baseline phase runs them unthrottled).
     async fn launch(
         &self,
         indices: impl Iterator<Item = usize>,
+        throttle: bool,
         slots_per_session: &mut Option<usize>,
     ) -> anyhow::Result<Vec<Running>> {
         let c = self.config;
         let mut opened: Vec<(usize, Ws, Welcome)> = Vec::new();
+        let throttle_of = |i: usize| {
+            (throttle && i < self.throttled)
+                .then_some(c.throttle_kbps)
+                .flatten()
+        };
         for i in indices {
             let size = self.size_of[i];
-            let throttle = (i < self.throttled).then_some(c.throttle_kbps).flatten();
+            let throttle = throttle_of(i);
             let (ws, welcome) = client::open(self.target, &c.hello(size), throttle)
                 .await
                 .with_context(|| format!("viewer {i} of {} ({size})", self.sessions))?;
@@ -80,7 +88,7 @@ impl PointContext<'_> {
             let behaviour = Behaviour {
                 target: self.target.clone(),
                 hello: c.hello(self.size_of[i]),
-                throttle_kbps: (i < self.throttled).then_some(c.throttle_kbps).flatten(),
+                throttle_kbps: throttle_of(i),
                 ack: c.ack,
                 measure_quality: c.raw_every.is_some(),
                 churn,
@@ -238,13 +246,11 @@ pub(super) async fn run_point(
     let opened_at = Instant::now();
     let label = format!("{views} views");
 
-    // With a baseline the unthrottled viewers start alone; else everyone at once.
-    let first_phase: Vec<usize> = if config.baseline_s.is_some() {
-        (throttled..sessions).collect()
-    } else {
-        (0..sessions).collect()
-    };
-    let mut running = ctx.launch(first_phase.iter().copied(), &mut slots).await?;
+    // With a baseline every viewer starts on a fast link — the same views, so the same
+    // render cost — and the throttled ones then reconnect through their slow links;
+    // without one, everyone starts as they will run.
+    let baseline = config.baseline_s.is_some();
+    let mut running = ctx.launch(0..sessions, !baseline, &mut slots).await?;
     wait_first_frames(&running, config.first_frame_timeout_s).await?;
     let first_frames_s = opened_at.elapsed().as_secs_f64();
     progress(&format!(
@@ -256,9 +262,13 @@ pub(super) async fn run_point(
         Some(b) => {
             let m = measure(target, &running, b, &format!("{label}, baseline"), progress).await?;
             progress(&format!(
-                "loadgen: {label}: baseline done; the {throttled} throttled viewers join"
+                "loadgen: {label}: baseline done; {throttled} viewers reconnect through their throttled links"
             ));
-            running.extend(ctx.launch(0..throttled, &mut slots).await?);
+            for r in running.iter().filter(|r| r.index < throttled) {
+                r.task.abort();
+            }
+            running.retain(|r| r.index >= throttled);
+            running.extend(ctx.launch(0..throttled, true, &mut slots).await?);
             running.sort_by_key(|r| r.index);
             wait_first_frames(&running, config.first_frame_timeout_s).await?;
             tokio::time::sleep(Duration::from_secs_f64(config.warmup_s)).await;

@@ -84,9 +84,9 @@ impl StreamDecoder {
                     got == want,
                     "H.264 picture is {got:?} pixels, the header says {want:?}"
                 );
-                let mut rgb = vec![0; want.0 * want.1 * 3];
-                yuv.write_rgb8(&mut rgb);
-                rgb
+                // Limited-range BT.601, as the server converted it (OpenH264's own
+                // `write_rgb8` assumes full range and shifts every colour).
+                crate::protocol::yuv420_to_rgb((yuv.y(), yuv.u(), yuv.v()), yuv.strides(), want)
             }
             FrameCodec::Raw => anyhow::bail!("a raw frame is not encoded"),
         };

@@ -7,9 +7,11 @@
 //! clients send in `server::validate`; `fogcast loadgen`, an outside client, uses only
 //! these types.
 
+mod color;
 mod frame;
 mod messages;
 
+pub use color::yuv420_to_rgb;
 pub use frame::{FrameCodec, FrameHeader};
 pub use messages::{
     clip, Ack, ClientMessage, Codec, Configure, ErrorCode, ErrorMessage, Hello, Layout, Limits,

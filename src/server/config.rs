@@ -166,7 +166,7 @@ impl Default for ServerConfig {
             max_kbps: 8000,
             min_kbps: 150,
             start_kbps: 2000,
-            gop_frames: 60,
+            gop_frames: 300,
             max_queue_ms: 150.0,
             debug_raw_frames: false,
             fault: None,

@@ -225,6 +225,9 @@ struct InFlight {
     frame: u32,
     bytes: u64,
     at: Instant,
+    /// Bytes acked in all when it was sent (its ack's delivery-rate sample counts what
+    /// arrived in between).
+    acked_before: u64,
 }
 
 /// What the writer's adaptation decided at a tick.
@@ -268,6 +271,13 @@ pub(crate) struct Flow {
     /// (when, bytes) of each ack (or, for a client that does not ack, each send) in the
     /// last [`RATE_WINDOW`].
     delivered: VecDeque<(Instant, u64)>,
+    /// Bytes acked in all.
+    acked_total: u64,
+    /// (when, bytes/s) delivery-rate samples of the last [`RATE_WINDOW`]: each ack's
+    /// bytes delivered since its frame was sent over the time it took. Their maximum is
+    /// the link's capacity estimate — a low-rate stream on a fast link delivers little
+    /// per second but each frame quickly, and must not look like a slow link.
+    rate_samples: VecDeque<(Instant, f64)>,
     /// Whether the client acks (flow control applies only then), and when it last did.
     acks: bool,
     last_ack: Instant,
@@ -302,6 +312,8 @@ impl Flow {
             in_flight: VecDeque::new(),
             in_flight_bytes: 0,
             delivered: VecDeque::new(),
+            acked_total: 0,
+            rate_samples: VecDeque::new(),
             acks: false,
             last_ack: now,
             base_rtt: None,
@@ -377,13 +389,23 @@ impl Flow {
             return true;
         }
         let budget =
-            self.delivered_bps(now) * (self.base_rtt() + self.config.max_queue).as_secs_f64();
+            self.capacity_bps(now) * (self.base_rtt() + self.config.max_queue).as_secs_f64();
         (self.in_flight_bytes as f64) < budget
+    }
+
+    /// The link's capacity estimate, bytes/s: the largest delivery-rate sample of the
+    /// last [`RATE_WINDOW`] (the delivered rate before there is one).
+    fn capacity_bps(&self, now: Instant) -> f64 {
+        self.rate_samples
+            .iter()
+            .filter(|(t, _)| now.duration_since(*t) <= RATE_WINDOW)
+            .map(|(_, r)| *r)
+            .fold(self.delivered_bps(now), f64::max)
     }
 
     /// Seconds of queue beyond the base round trip that what is in flight represents.
     fn queue_s(&self, now: Instant) -> f64 {
-        let drain = self.in_flight_bytes as f64 / self.delivered_bps(now).max(1.0);
+        let drain = self.in_flight_bytes as f64 / self.capacity_bps(now).max(1.0);
         (drain - self.base_rtt().as_secs_f64()).max(0.0)
     }
 
@@ -393,6 +415,7 @@ impl Flow {
             frame,
             bytes,
             at: now,
+            acked_before: self.acked_total,
         });
         self.in_flight_bytes += bytes;
         if !self.acks {
@@ -418,14 +441,14 @@ impl Flow {
                 break;
             }
             self.in_flight_bytes -= f.bytes;
+            self.acked_total += f.bytes;
             self.delivered.push_back((now, f.bytes));
-            let rate = self.delivered_bps(now);
-            let transmit = if rate > 0.0 {
-                Duration::from_secs_f64(f.bytes as f64 / rate)
-            } else {
-                Duration::ZERO
-            };
-            let rtt = now.duration_since(f.at).saturating_sub(transmit);
+            let took = now.duration_since(f.at).max(Duration::from_micros(100));
+            let sample = (self.acked_total - f.acked_before) as f64 / took.as_secs_f64();
+            self.rate_samples.push_back((now, sample));
+            let transmit =
+                Duration::from_secs_f64(f.bytes as f64 / self.capacity_bps(now).max(1.0));
+            let rtt = took.saturating_sub(transmit);
             self.base_rtt = Some(self.base_rtt.map_or(rtt, |b| b.min(rtt)));
             self.in_flight.pop_front();
         }
@@ -439,12 +462,12 @@ impl Flow {
     }
 
     fn trim(&mut self, now: Instant) {
-        while self
-            .delivered
-            .front()
-            .is_some_and(|(t, _)| now.duration_since(*t) > RATE_WINDOW)
-        {
+        let old = |t: &Instant| now.duration_since(*t) > RATE_WINDOW;
+        while self.delivered.front().is_some_and(|(t, _)| old(t)) {
             self.delivered.pop_front();
+        }
+        while self.rate_samples.front().is_some_and(|(t, _)| old(t)) {
+            self.rate_samples.pop_front();
         }
     }
 
@@ -527,6 +550,7 @@ mod tests {
         f: &mut Flow,
         kbps: f64,
         secs: f64,
+        fps: f64,
         frame_bytes: impl Fn(u32) -> u64,
     ) -> (u64, f64) {
         let start = Instant::now();
@@ -535,31 +559,35 @@ mod tests {
         let mut late_bytes = 0;
         let mut worst_queue_s: f64 = 0.0;
         let mut frame = 0u32;
-        let mut t = 0.0;
-        while t < secs {
-            let now = start + Duration::from_secs_f64(t);
+        let mut next_frame = 0.0;
+        // 1 ms steps: acks are taken when they arrive, frames come at `fps`.
+        for ms in 0..(secs * 1000.0) as u64 {
+            let t = ms as f64 / 1000.0;
+            let now = start + Duration::from_millis(ms);
             while pending.front().is_some_and(|(at, _)| *at <= t) {
                 let (_, fr) = pending.pop_front().unwrap();
                 f.acked(fr, now);
             }
-            frame += 1;
-            if f.can_send(now) {
-                let bytes = frame_bytes(f.target_kbps());
-                let begin = link_free_at.max(t);
-                link_free_at = begin + bytes as f64 * 8.0 / (kbps * 1000.0);
-                worst_queue_s = worst_queue_s.max(link_free_at - t);
-                pending.push_back((link_free_at, frame));
-                f.sent(frame, bytes, Duration::ZERO, now);
-                if t >= secs / 2.0 {
-                    late_bytes += bytes;
+            if t >= next_frame {
+                next_frame += 1.0 / fps;
+                frame += 1;
+                if f.can_send(now) {
+                    let bytes = frame_bytes(f.target_kbps());
+                    let begin = link_free_at.max(t);
+                    link_free_at = begin + bytes as f64 * 8.0 / (kbps * 1000.0);
+                    worst_queue_s = worst_queue_s.max(link_free_at - t);
+                    pending.push_back((link_free_at, frame));
+                    f.sent(frame, bytes, Duration::ZERO, now);
+                    if t >= secs / 2.0 {
+                        late_bytes += bytes;
+                    }
+                } else {
+                    f.skipped(1);
                 }
-            } else {
-                f.skipped(1);
             }
             if f.tick_due(now) {
                 f.tick(now, false);
             }
-            t += 1.0 / 30.0;
         }
         (late_bytes, worst_queue_s)
     }
@@ -571,22 +599,38 @@ mod tests {
         // first ack on.
         f.acked(0, Instant::now());
         // An encoder that hits its target: target/30 fps per frame.
-        let (bytes, worst) = simulate(&mut f, 1000.0, 40.0, |kbps| kbps as u64 * 1000 / 8 / 30);
+        let (bytes, worst) = simulate(&mut f, 1000.0, 40.0, 30.0, |kbps| {
+            kbps as u64 * 1000 / 8 / 30
+        });
         let kbps = bytes as f64 * 8.0 / 1000.0 / 20.0;
         assert!(
             kbps <= 1000.0 && kbps > 600.0,
             "sent {kbps} kbit/s over a 1000 kbit/s link"
         );
-        assert!(f.target_kbps() < 1000, "target {}", f.target_kbps());
+        // The target saws around the link's rate (probing up, cut on congestion).
+        assert!(f.target_kbps() < 1500, "target {}", f.target_kbps());
         assert!(worst < 0.5, "longest queue {worst} s");
     }
 
     #[test]
     fn a_fast_link_probes_up_to_the_ceiling() {
         let mut f = flow();
-        simulate(&mut f, 100_000.0, 30.0, |kbps| kbps as u64 * 1000 / 8 / 30);
+        simulate(&mut f, 100_000.0, 30.0, 30.0, |kbps| {
+            kbps as u64 * 1000 / 8 / 30
+        });
         assert_eq!(f.target_kbps(), 8000);
         assert_eq!(f.quality(), 75);
+    }
+
+    #[test]
+    fn a_small_stream_on_a_fast_link_is_never_congested() {
+        // 2 KB frames at 5 fps: one frame is 0.2 s of the delivered *rate*, which must
+        // not read as a 0.2 s queue; the capacity estimate comes from how fast each
+        // frame arrives instead.
+        let mut f = flow();
+        f.acked(0, Instant::now());
+        simulate(&mut f, 50_000.0, 20.0, 5.0, |_| 2_000);
+        assert_eq!((f.target_kbps(), f.quality()), (8000, 75));
     }
 
     #[test]
@@ -654,8 +698,12 @@ mod tests {
                 .decode(&au.bytes)
                 .unwrap()
                 .expect("a picture per access unit");
-            let mut rgb = vec![0u8; (w * h * 3) as usize];
-            yuv.write_rgb8(&mut rgb);
+            use openh264::formats::YUVSource as _;
+            let rgb = crate::protocol::yuv420_to_rgb(
+                (yuv.y(), yuv.u(), yuv.v()),
+                yuv.strides(),
+                (w as usize, h as usize),
+            );
             let mse: f64 = rgb
                 .chunks(3)
                 .zip(rgba.chunks(4))
