@@ -7,7 +7,7 @@
 #      default quality, then H.264 capped at each of SOAK_H264_KBPS ("150 300") kbit/s,
 #      --raw-every 5, SOAK_QUALITY_S (60) s each; prints bytes per frame and PSNR of each
 #      and the verdict: the cheapest H.264 run with at least JPEG's PSNR, bound 0.25x;
-#   b. a slow client: one viewer asking for 1280x720 JPEG at quality 95 reads at 1000
+#   b. a slow client: one viewer asking for 960x540 JPEG at quality 95 reads at 1000
 #      kbit/s among four small unthrottled viewers, SOAK_THROTTLE_S (300) s after a
 #      SOAK_BASELINE_S (30) s baseline with all five on fast links; then the same at
 #      SOAK_TIGHT_KBPS (250) for SOAK_TIGHT_S (120) s, a link the stream does not fit;
@@ -125,10 +125,10 @@ if ratio > 0.25:
 PY
 
 # b. One slow client among four: its latency stays flat, the others keep their fps. The
-#    throttled viewer asks for the heaviest stream (1280x720 JPEG at quality 95) and the
+#    throttled viewer asks for the heaviest stream (960x540 JPEG at quality 95) and the
 #    others for small views of their own sizes; then the same at SOAK_TIGHT_KBPS (250),
 #    a link narrower than that stream on a CPU renderer, where the adaptation must act.
-mix=1280x720,256x144,240x136,272x154,224x126
+mix=960x540,256x144,240x136,272x154,224x126
 loadgen throttled --viewers 5 --mix "$mix" --codec jpeg --quality 95 \
   --throttle-kbps 1000 --throttled 1 --baseline-s "$baseline_s" --seconds "$throttle_s" \
   --window-s "$(window_of "$throttle_s" 5)" \

@@ -109,9 +109,12 @@ pub(crate) fn evaluate(checks: &Checks, points: &[PointResult]) -> Vec<CheckResu
                 (Some(b), Some(c)) => {
                     let (base, fps) = (b.summary.fps_mean, c.summary.fps_mean);
                     (
-                        base > 0.0 && (fps - base).abs() <= within * base,
+                        // They must not lose fps to the slow client; gaining some (a
+                        // CPU renderer freed from encoding frames the slow link skips)
+                        // is no failure.
+                        base > 0.0 && fps >= (1.0 - within) * base,
                         format!(
-                            "unthrottled {fps:.2} fps with the throttled viewers vs {base:.2} fps alone: {:+.1} % (allowed ±{:.1} %); server render loop {:.1} fps, {:.1} alone",
+                            "unthrottled {fps:.2} fps with the throttled viewers vs {base:.2} fps with every link fast: {:+.1} % (allowed down to −{:.1} %); server render loop {:.1} fps, {:.1} in the baseline",
                             if base > 0.0 { (fps / base - 1.0) * 100.0 } else { f64::NAN },
                             within * 100.0,
                             p.server.fps,

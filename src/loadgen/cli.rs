@@ -137,8 +137,8 @@ pub struct LoadgenArgs {
     /// Check: the throttled class's p95 in the last window at most R × the first window's.
     #[arg(long, value_name = "R")]
     pub check_creep: Option<f64>,
-    /// Check: the unthrottled viewers' fps within F (a fraction, 0.1 = 10 %) of the
-    /// baseline's.
+    /// Check: the unthrottled viewers' fps at least (1 − F) × the baseline's (F a
+    /// fraction, 0.1 = 10 %): a slow client costs the others no more than that.
     #[arg(long, value_name = "F")]
     pub check_fps_within: Option<f64>,
     /// Check: the server's RSS in the last window at most (1 + G) × the second window's.

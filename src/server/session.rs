@@ -430,6 +430,7 @@ async fn write_loop(
         session.stream.target_kbps.load(Relaxed),
         announced.max_kbps,
         announced.quality,
+        announced.codec == Codec::Jpeg,
     );
     let _target = TargetGauge::new(hub, flow.target_kbps());
     loop {
@@ -468,7 +469,7 @@ async fn write_loop(
                     announced = spec;
                     requested = spec;
                     flow.shrink_level = 0;
-                    flow.set_limits(spec.max_kbps, spec.quality);
+                    flow.set_limits(spec.max_kbps, spec.quality, spec.codec == Codec::Jpeg);
                     Message::Text(t.into())
                 }
                 Some(Control::Close(e)) => {

@@ -254,10 +254,26 @@ const PROBE_AFTER: Duration = Duration::from_secs(2);
 const SHRINK_AFTER: Duration = Duration::from_secs(3);
 /// Uncongested time before a shrunk frame grows back one step.
 const GROW_AFTER: Duration = Duration::from_secs(10);
-/// A client that has frames in flight and sends no ack for this long has stopped
-/// acking (a throttled tab, a client that acks only sometimes): it is paced by TCP
-/// again until its next ack, rather than never sent another frame.
+/// A new session's first frame waits this long for its ack before the client counts as
+/// one that does not ack (paced by TCP alone). Until then one frame at a time is in
+/// flight, so a slow link's TCP buffers are not filled before its first ack returns.
+const FIRST_ACK_GRACE: Duration = Duration::from_secs(1);
+/// An acking client with frames in flight and no ack for this long is sent one frame
+/// (a probe) per this interval — congested, never stuck — whatever the reason: a link
+/// slower than one frame per interval, or a client that stopped acking.
 const ACK_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Whether the client acks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Acks {
+    /// Not known yet: one frame in flight until its ack or [`FIRST_ACK_GRACE`].
+    Unknown,
+    /// It acks: flow control by what is in flight.
+    Yes,
+    /// It has not acked within the grace: paced by the WebSocket send (TCP) alone,
+    /// until an ack arrives.
+    No,
+}
 /// The delivered rate is measured over this window.
 const RATE_WINDOW: Duration = Duration::from_secs(1);
 
@@ -278,9 +294,11 @@ pub(crate) struct Flow {
     /// the link's capacity estimate — a low-rate stream on a fast link delivers little
     /// per second but each frame quickly, and must not look like a slow link.
     rate_samples: VecDeque<(Instant, f64)>,
-    /// Whether the client acks (flow control applies only then), and when it last did.
-    acks: bool,
+    /// Whether the client acks (flow control applies only then), when it last did, and
+    /// when the last frame went out.
+    acks: Acks,
     last_ack: Instant,
+    last_send: Option<Instant>,
     /// Shortest send-to-ack time seen, less the frame's own transmission time: the
     /// path's base delay, which is not queueing. Kept for the session's life — a minimum
     /// that were allowed to forget could learn a standing queue as "base" and let the
@@ -293,6 +311,8 @@ pub(crate) struct Flow {
     /// The target, kbit/s, and its ceiling.
     target_kbps: f64,
     max_kbps: f64,
+    /// Whether the stream is JPEG (its lever is the quality) or H.264 (the bitrate).
+    jpeg: bool,
     /// JPEG quality in force and the requested one.
     quality: u8,
     max_quality: u8,
@@ -305,7 +325,13 @@ pub(crate) struct Flow {
 }
 
 impl Flow {
-    pub(crate) fn new(config: FlowConfig, start_kbps: u32, max_kbps: u32, quality: u8) -> Flow {
+    pub(crate) fn new(
+        config: FlowConfig,
+        start_kbps: u32,
+        max_kbps: u32,
+        quality: u8,
+        jpeg: bool,
+    ) -> Flow {
         let now = Instant::now();
         Flow {
             config,
@@ -314,13 +340,15 @@ impl Flow {
             delivered: VecDeque::new(),
             acked_total: 0,
             rate_samples: VecDeque::new(),
-            acks: false,
+            acks: Acks::Unknown,
             last_ack: now,
+            last_send: None,
             base_rtt: None,
             blocked: Duration::ZERO,
             skipped: 0,
             target_kbps: f64::from(start_kbps.min(max_kbps)),
             max_kbps: f64::from(max_kbps),
+            jpeg,
             quality,
             max_quality: quality,
             congested_since: None,
@@ -331,7 +359,8 @@ impl Flow {
     }
 
     /// The client asked for a new ceiling and quality (a configure).
-    pub(crate) fn set_limits(&mut self, max_kbps: u32, quality: u8) {
+    pub(crate) fn set_limits(&mut self, max_kbps: u32, quality: u8, jpeg: bool) {
+        self.jpeg = jpeg;
         self.max_kbps = f64::from(max_kbps);
         self.target_kbps = self.target_kbps.min(self.max_kbps);
         self.max_quality = quality;
@@ -372,21 +401,30 @@ impl Flow {
     /// those that do, while what is in flight stays under what the delivered rate
     /// drains in the base round trip plus `max_queue` (one frame may always be in flight).
     pub(crate) fn can_send(&mut self, now: Instant) -> bool {
-        if self.acks
-            && !self.in_flight.is_empty()
-            && now.duration_since(self.last_ack) > ACK_TIMEOUT
-        {
-            tracing::debug!(
-                in_flight = self.in_flight.len(),
-                "no ack for {ACK_TIMEOUT:?}: pacing by TCP until the next ack"
-            );
-            self.acks = false;
-            self.in_flight.clear();
-            self.in_flight_bytes = 0;
-            self.skipped += 1;
-        }
-        if !self.acks || self.in_flight.is_empty() {
+        if self.in_flight.is_empty() {
             return true;
+        }
+        let since_send = self
+            .last_send
+            .map_or(Duration::MAX, |t| now.duration_since(t));
+        match self.acks {
+            Acks::No => return true,
+            Acks::Unknown if since_send > FIRST_ACK_GRACE => {
+                tracing::debug!("no ack within {FIRST_ACK_GRACE:?}: paced by TCP alone");
+                self.acks = Acks::No;
+                self.in_flight.clear();
+                self.in_flight_bytes = 0;
+                return true;
+            }
+            Acks::Unknown => return false,
+            Acks::Yes
+                if now.duration_since(self.last_ack) > ACK_TIMEOUT && since_send > ACK_TIMEOUT =>
+            {
+                // A probe: the link (or the client) is far behind.
+                self.skipped += 1;
+                return true;
+            }
+            Acks::Yes => {}
         }
         let budget =
             self.capacity_bps(now) * (self.base_rtt() + self.config.max_queue).as_secs_f64();
@@ -418,7 +456,8 @@ impl Flow {
             acked_before: self.acked_total,
         });
         self.in_flight_bytes += bytes;
-        if !self.acks {
+        self.last_send = Some(now);
+        if self.acks == Acks::No {
             self.delivered.push_back((now, bytes));
             self.blocked += took;
             // Nobody acks: what the socket took counts as delivered.
@@ -431,9 +470,9 @@ impl Flow {
     /// The client has every frame up to `frame`.
     pub(crate) fn acked(&mut self, frame: u32, now: Instant) {
         self.last_ack = now;
-        if !self.acks {
+        if self.acks != Acks::Yes {
             // From now on the delivered rate is what the client confirms.
-            self.acks = true;
+            self.acks = Acks::Yes;
             self.delivered.clear();
         }
         while let Some(f) = self.in_flight.front() {
@@ -484,7 +523,7 @@ impl Flow {
             .max(Duration::from_millis(1));
         self.last_tick = now;
         self.trim(now);
-        let oldest_wait = if self.acks {
+        let oldest_wait = if self.acks == Acks::Yes {
             self.queue_s(now)
         } else {
             self.blocked.as_secs_f64() / elapsed.as_secs_f64() * TICK.as_secs_f64()
@@ -504,7 +543,12 @@ impl Flow {
             }
             self.target_kbps = self.target_kbps.clamp(floor, self.max_kbps);
             self.quality = self.quality.saturating_sub(10).max(MIN_JPEG_QUALITY);
-            let at_floor = self.target_kbps <= floor * 1.01;
+            // Nothing left to lower: H.264 at the floor bitrate, JPEG at the floor quality.
+            let at_floor = if self.jpeg {
+                self.quality <= MIN_JPEG_QUALITY
+            } else {
+                self.target_kbps <= floor * 1.01
+            };
             if at_floor && shrinkable && now.duration_since(since) >= SHRINK_AFTER {
                 self.congested_since = None;
                 self.shrink_level += 1;
@@ -540,6 +584,7 @@ mod tests {
             2000,
             8000,
             75,
+            false,
         )
     }
 
@@ -666,14 +711,42 @@ mod tests {
     }
 
     #[test]
-    fn without_acks_every_frame_may_go() {
+    fn the_first_frame_waits_for_its_ack_then_a_client_without_acks_is_paced_by_tcp() {
         let mut f = flow();
-        let now = Instant::now();
-        for i in 0..100 {
-            f.sent(i, 1_000_000, Duration::ZERO, now);
+        let t0 = Instant::now();
+        assert!(f.can_send(t0));
+        f.sent(1, 1_000_000, Duration::ZERO, t0);
+        // One frame in flight until its ack or the grace...
+        assert!(!f.can_send(t0 + Duration::from_millis(500)));
+        // ... after which every frame may go.
+        let later = t0 + FIRST_ACK_GRACE + Duration::from_millis(1);
+        assert!(f.can_send(later));
+        for i in 2..100 {
+            f.sent(i, 1_000_000, Duration::ZERO, later);
+            assert!(f.can_send(later));
         }
-        assert!(f.can_send(now));
         assert_eq!(f.in_flight_bytes(), 0);
+    }
+
+    #[test]
+    fn a_client_that_stops_acking_gets_a_probe_a_second() {
+        let mut f = flow();
+        let t0 = Instant::now();
+        f.sent(1, 1000, Duration::ZERO, t0);
+        f.acked(1, t0 + Duration::from_millis(5));
+        let mut sent = 0;
+        for ms in (10..10_000).step_by(10) {
+            let now = t0 + Duration::from_millis(ms);
+            if f.can_send(now) {
+                sent += 1;
+                f.sent(1 + sent, 50_000, Duration::ZERO, now);
+            }
+        }
+        // The window lets a few frames go at first, then one probe per ACK_TIMEOUT.
+        assert!(
+            (9..=15).contains(&sent),
+            "{sent} frames in 10 s without an ack"
+        );
     }
 
     #[test]
