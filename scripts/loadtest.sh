@@ -21,41 +21,10 @@ started=$(date +%s)
 
 [ -x "$bin" ] || { echo "loadtest: $bin not found; run \`make build\` first" >&2; exit 1; }
 mkdir -p "$out"
-server_out="$out/server.stdout"
-server_log="$out/server.log"
-
+# shellcheck source=scripts/lib/serve.sh
+. "$(dirname "$0")/lib/serve.sh"
 # shellcheck disable=SC2086 # SERVE_ARGS is a list of flags
-"$bin" serve --scene "$scene" --addr 127.0.0.1 --port 0 ${SERVE_ARGS:-} >"$server_out" 2>"$server_log" &
-server=$!
-stop_server() {
-  if kill -0 "$server" 2>/dev/null; then
-    kill -TERM "$server" 2>/dev/null || true
-    # Graceful shutdown closes every session; give it 10 s before forcing.
-    for _ in $(seq 1 100); do
-      kill -0 "$server" 2>/dev/null || break
-      sleep 0.1
-    done
-    kill -KILL "$server" 2>/dev/null || true
-  fi
-  wait "$server" 2>/dev/null || true
-}
-trap stop_server EXIT
-trap 'exit 130' INT TERM
-
-# The server prints "fogcast serving http://127.0.0.1:PORT ..." once it listens (after
-# building the scene's BVH and pipelines).
-url=
-for _ in $(seq 1 1200); do
-  if ! kill -0 "$server" 2>/dev/null; then
-    echo "loadtest: the server exited during start-up; its log ($server_log):" >&2
-    tail -n 20 "$server_log" >&2
-    exit 1
-  fi
-  url=$(grep -o 'http://[0-9.]*:[0-9]*' "$server_out" | head -n 1 || true)
-  [ -n "$url" ] && break
-  sleep 0.1
-done
-[ -n "$url" ] || { echo "loadtest: the server did not start listening within 120 s; see $server_log" >&2; exit 1; }
+start_server loadtest "$out" ${SERVE_ARGS:-}
 hostport=${url#http://}
 
 healthz() {

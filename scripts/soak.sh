@@ -4,7 +4,7 @@
 # reports under out/soak/ (docs/loadtest.md, "Streaming scenarios and make soak"):
 #
 #   a. codec quality: one 640x360 viewer walking colonnade's camera loop, JPEG at the
-#      default quality, then H.264 capped at each of SOAK_H264_KBPS ("150 300") kbit/s,
+#      default quality, then H.264 capped at each of SOAK_H264_KBPS ("150 300 450") kbit/s,
 #      --raw-every 5, SOAK_QUALITY_S (60) s each; prints bytes per frame and PSNR of each
 #      and the verdict: the cheapest H.264 run with at least JPEG's PSNR, bound 0.25x;
 #   b. a slow client: one viewer asking for 960x540 JPEG at quality 95 reads at 1000
@@ -38,37 +38,10 @@ started=$(date +%s)
 
 [ -x "$bin" ] || { echo "soak: $bin not found; run \`make build\` first" >&2; exit 1; }
 mkdir -p "$out"
-server_out="$out/server.stdout"
-server_log="$out/server.log"
+# shellcheck source=scripts/lib/serve.sh
+. "$(dirname "$0")/lib/serve.sh"
 # shellcheck disable=SC2086 # SERVE_ARGS is a list of flags
-"$bin" serve --scene "$scene" --addr 127.0.0.1 --port 0 --debug-raw-frames --idle-timeout-s "$idle_timeout_s" ${SERVE_ARGS:-} >"$server_out" 2>"$server_log" &
-server=$!
-stop_server() {
-  if kill -0 "$server" 2>/dev/null; then
-    kill -TERM "$server" 2>/dev/null || true
-    for _ in $(seq 1 100); do
-      kill -0 "$server" 2>/dev/null || break
-      sleep 0.1
-    done
-    kill -KILL "$server" 2>/dev/null || true
-  fi
-  wait "$server" 2>/dev/null || true
-}
-trap stop_server EXIT
-trap 'exit 130' INT TERM
-
-url=
-for _ in $(seq 1 1200); do
-  if ! kill -0 "$server" 2>/dev/null; then
-    echo "soak: the server exited during start-up; its log ($server_log):" >&2
-    tail -n 20 "$server_log" >&2
-    exit 1
-  fi
-  url=$(grep -o 'http://[0-9.]*:[0-9]*' "$server_out" | head -n 1 || true)
-  [ -n "$url" ] && break
-  sleep 0.1
-done
-[ -n "$url" ] || { echo "soak: the server did not start listening within 120 s; see $server_log" >&2; exit 1; }
+start_server soak "$out" --debug-raw-frames --idle-timeout-s "$idle_timeout_s" ${SERVE_ARGS:-}
 ws="ws://${url#http://}/ws"
 echo "soak: server at $url; reports in $out/" >&2
 
@@ -85,10 +58,15 @@ loadgen() {
   fi
 }
 
+# Which scenarios run: SOAK_SCENARIOS, any of "quality throttled soak" (all by default).
+scenarios=" ${SOAK_SCENARIOS:-quality throttled soak} "
+wants() { [[ $scenarios == *" $1 "* ]]; }
+
 # a. Codec quality: the same camera walk (each run starts at the same point of the loop),
 #    JPEG at the server's default quality, then H.264 capped at each bitrate of
 #    SOAK_H264_KBPS; the verdict is the cheapest H.264 run with at least JPEG's PSNR.
-h264_kbps=${SOAK_H264_KBPS:-150 300}
+h264_kbps=${SOAK_H264_KBPS:-150 300 450}
+if wants quality; then
 loadgen quality-jpeg --viewers 1 --width 640 --height 360 --codec jpeg --raw-every 5 \
   --seconds "$quality_s" --window-s "$quality_s" --out "$out/quality-jpeg"
 for kbps in $h264_kbps; do
@@ -123,11 +101,13 @@ print(f"soak: verdict: H.264 at {k} kbit/s has {ratio:.3f}x JPEG's bytes per fra
 if ratio > 0.25:
     sys.exit("soak: H.264 is above 0.25x JPEG's bytes at equal PSNR")
 PY
+fi
 
 # b. One slow client among four: its latency stays flat, the others keep their fps. The
 #    throttled viewer asks for the heaviest stream (960x540 JPEG at quality 95) and the
 #    others for small views of their own sizes; then the same at SOAK_TIGHT_KBPS (250),
 #    a link narrower than that stream on a CPU renderer, where the adaptation must act.
+if wants throttled; then
 mix=960x540,256x144,240x136,272x154,224x126
 loadgen throttled --viewers 5 --mix "$mix" --codec jpeg --quality 95 \
   --throttle-kbps 1000 --throttled 1 --baseline-s "$baseline_s" --seconds "$throttle_s" \
@@ -139,10 +119,15 @@ loadgen throttled-tight --viewers 5 --mix "$mix" --codec jpeg --quality 95 \
   --window-s "$(window_of "$tight_s" 4)" \
   --check-latency-p95-ms 500 --check-creep 1.2 --check-fps-within 0.1 --out "$out/throttled-tight"
 
+fi
+
 # c. Soak: 16 churning viewers; memory, latency and sessions stay put.
+if wants soak; then
 loadgen soak --viewers 16 --width 256 --height 144 --codec h264 --churn-s "$churn_s" \
   --seconds "$soak_s" --window-s "$(window_of "$soak_s" 10)" \
   --check-memory-growth 0.1 --check-creep 1.2 --check-sessions --out "$out/soak"
+
+fi
 
 took=$(( $(date +%s) - started ))
 if [ ${#failed[@]} -gt 0 ]; then

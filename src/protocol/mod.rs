@@ -11,7 +11,7 @@ mod color;
 mod frame;
 mod messages;
 
-pub use color::yuv420_to_rgb;
+pub use color::{rgba_to_i420, yuv420_to_rgb};
 pub use frame::{FrameCodec, FrameHeader};
 pub use messages::{
     clip, Ack, ClientMessage, Codec, Configure, ErrorCode, ErrorMessage, Hello, Layout, Limits,

@@ -7,7 +7,7 @@
 //! sends, acks and skips it is told about and the time, so it is tested without sockets.
 
 use openh264::encoder::{Encoder, EncoderConfig, FrameType, RateControlMode, UsageType};
-use openh264::formats::{RgbSliceU8, YUVBuffer};
+use openh264::formats::YUVSlices;
 use openh264::{OpenH264API, Timestamp};
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, Ordering::Relaxed};
@@ -94,8 +94,8 @@ pub(crate) struct H264Stream {
     interval_s: f64,
     last_ms: Option<u64>,
     frames_since_key: u32,
-    rgb: Vec<u8>,
-    yuv: YUVBuffer,
+    /// The frame in I420, converted as `protocol::rgba_to_i420` documents.
+    i420: Vec<u8>,
 }
 
 /// An encoded access unit.
@@ -126,8 +126,7 @@ impl H264Stream {
             interval_s: 1.0 / fps,
             last_ms: None,
             frames_since_key: 0,
-            rgb: Vec::with_capacity(width as usize * height as usize * 3),
-            yuv: YUVBuffer::new(width as usize, height as usize),
+            i420: Vec::with_capacity(width as usize * height as usize * 3 / 2),
         })
     }
 
@@ -168,14 +167,13 @@ impl H264Stream {
             "an RGBA frame of {} bytes for a {w}x{h} stream",
             rgba.len()
         );
-        // The integer RGB path of OpenH264's converter (its RGBA path goes through f32).
-        self.rgb.clear();
-        self.rgb
-            .extend(rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]));
-        self.yuv.read_rgb8(RgbSliceU8::new(&self.rgb, (w, h)));
+        crate::protocol::rgba_to_i420(rgba, (w, h), &mut self.i420);
+        let (y, chroma) = self.i420.split_at(w * h);
+        let (u, v) = chroma.split_at(w * h / 4);
+        let picture = YUVSlices::new((y, u, v), (w, h), (w, w / 2, w / 2));
         let stream = self
             .encoder
-            .encode_at(&self.yuv, Timestamp::from_millis(time_ms))
+            .encode_at(&picture, Timestamp::from_millis(time_ms))
             .map_err(|e| anyhow::anyhow!("H.264 encoding: {e}"))?;
         if stream.frame_type() == FrameType::Skip {
             return Ok(None);
