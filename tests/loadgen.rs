@@ -464,7 +464,7 @@ async fn throttled_and_churning(codec: Codec) {
     for want in [
         "loadgen_windows.png",
         "## Viewer classes",
-        "baseline (unthrottled alone)",
+        "baseline (every link fast)",
         "## Over time",
         "## Sessions",
         "## Checks",
@@ -491,6 +491,8 @@ async fn a_throttled_h264_viewer_and_churn_pass_the_checks() {
 async fn raw_frames_measure_the_quality_of_both_codecs() {
     let server = start(ServerConfig {
         debug_raw_frames: true,
+        // A key frame inside the measured window whatever its length.
+        gop_frames: 10,
         ..test_config()
     })
     .await;

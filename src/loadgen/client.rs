@@ -167,6 +167,8 @@ pub(crate) struct FrameRecord {
 #[derive(Debug, Default)]
 pub(crate) struct Live {
     pub(crate) frames: AtomicU64,
+    /// Sessions this viewer opened after its first (churn), readable after an abort.
+    pub(crate) reopened: AtomicU64,
     /// Why the stream ended early (server close, error), once it has.
     pub(crate) ended: Mutex<Option<String>>,
 }
@@ -294,6 +296,7 @@ pub(crate) async fn stream(
                         welcome = new_welcome;
                         session_no += 1;
                         rec.sessions_opened += 1;
+                        live.reopened.fetch_add(1, Relaxed);
                     }
                     Ok(None) => break,
                     Err(why) => {

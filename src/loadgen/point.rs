@@ -250,6 +250,7 @@ pub(super) async fn run_point(
     // render cost — and the throttled ones then reconnect through their slow links;
     // without one, everyone starts as they will run.
     let baseline = config.baseline_s.is_some();
+    let mut baseline_sessions = 0u64;
     let mut running = ctx.launch(0..sessions, !baseline, &mut slots).await?;
     wait_first_frames(&running, config.first_frame_timeout_s).await?;
     let first_frames_s = opened_at.elapsed().as_secs_f64();
@@ -266,6 +267,7 @@ pub(super) async fn run_point(
             ));
             for r in running.iter().filter(|r| r.index < throttled) {
                 r.task.abort();
+                baseline_sessions += 1 + r.live.reopened.load(std::sync::atomic::Ordering::Relaxed);
             }
             running.retain(|r| r.index >= throttled);
             running.extend(ctx.launch(0..throttled, true, &mut slots).await?);
@@ -432,7 +434,7 @@ pub(super) async fn run_point(
         tokio::time::sleep(Duration::from_millis(50)).await;
         end = scrape::metrics(&target.authority).await?;
     }
-    let sessions_accounting = account_sessions(&per_viewer, &start, &end);
+    let sessions_accounting = account_sessions(&per_viewer, baseline_sessions, &start, &end);
     Ok(PointResult {
         viewers: views,
         sessions,
@@ -451,13 +453,16 @@ pub(super) async fn run_point(
 }
 
 /// Sessions loadgen opened against the server's counters from `start` to `end`.
+/// `extra`: sessions opened outside the viewers' records (the throttled viewers' fast-link
+/// sessions of the baseline phase).
 fn account_sessions(
     viewers: &[ViewerStats],
+    extra: u64,
     start: &scrape::Scrape,
     end: &scrape::Scrape,
 ) -> SessionAccounting {
     let delta = |name: &str| (end.get(name, "") - start.get(name, "")).max(0.0) as u64;
-    let opened_by_loadgen = viewers.iter().map(|v| v.sessions_opened).sum();
+    let opened_by_loadgen = viewers.iter().map(|v| v.sessions_opened).sum::<u64>() + extra;
     let server_opened = delta(SESSIONS_OPENED);
     let server_closed = (end.has(SESSIONS_CLOSED)).then(|| delta(SESSIONS_CLOSED));
     let open_before = start.get("fogcast_sessions", "") as u64;
