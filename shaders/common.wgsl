@@ -36,6 +36,16 @@ struct Frame {
     moved_max: vec3f,
     // Quadrature step of a shadow ray through height or noisy media, metres.
     media_step_m: f32,
+    // The world media layer (shaders/media_layer.wgsl): origin, voxel edge, bricks a
+    // side, pool slots, this frame's fill stamp, the g of every medium in it.
+    layer_min: vec3f,
+    layer_voxel: f32,
+    layer_bricks: vec3u,
+    layer_capacity: u32,
+    layer_stamp: u32,
+    layer_g: f32,
+    _layer_pad0: u32,
+    _layer_pad1: u32,
 }
 
 // Frame.flags
@@ -48,6 +58,8 @@ const FLAG_CACHE: u32 = 64u;     // grid: keep voxels' light bits until a light 
 const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (sparse)
 const FLAG_CULL: u32 = 256u;     // demand: froxels behind the depth buffer are not lit (froxel_cull.wgsl)
 const FLAG_MEDIA_T: u32 = 512u;  // transmittance toward lights from the shared volumes (else marched)
+const FLAG_LAYER: u32 = 1024u;   // media marked `in_layer` are read from the world media layer
+const FLAG_LAYER_EXTRA: u32 = 4096u; // the layer stores emission and g per node (else g = frame.layer_g)
 
 struct View {
     view_proj: mat4x4f,
@@ -112,7 +124,7 @@ struct Medium {
     noise_frequency: f32,
     noise_octaves: u32,
     noise_amplitude: f32,
-    _pad: u32,
+    in_layer: u32,    // 1: read from the world media layer where it holds the point
     // Volume primitives (kind 4; `radius_or_falloff` is their radius).
     center: vec3f,
     period_s: f32,
@@ -138,6 +150,16 @@ struct Medium {
 // trilinearly.
 @group(0) @binding(7) var<storage, read_write> media_t: array<f32>;
 @group(0) @binding(8) var<storage, read> light_media: array<LightMedia>;
+// The world media layer (shaders/media_layer.wgsl, src/render/media_layer.rs): bricks of
+// 8³ voxels over the media's bounds, each in `layer_table` as its pool slot + 1 (0: not
+// in the pool this frame — read the media analytically there). A slot holds the brick's
+// 9³ nodes (corners of its voxels; faces are stored by both neighbours, so a trilinear
+// read never leaves its brick), 4 words each: σs.rgb, σt as f16, then emission.rgb and
+// g·mean(σs) as f16. `layer_slots`: [0] slots handed out, then per slot its brick and the
+// stamp of the frame that filled it.
+@group(0) @binding(9) var<storage, read_write> layer_table: array<u32>;
+@group(0) @binding(10) var<storage, read_write> layer_pool: array<vec4u>;
+@group(0) @binding(11) var<storage, read_write> layer_slots: array<atomic<u32>>;
 
 // Light i's transmittance volume: dims.x·dims.y columns of dims.z nodes `spacing` apart,
 // node (x, y, k) at media_t[offset + x + dims.x·(y + dims.y·k)]. A directional light's
@@ -167,6 +189,8 @@ const C_FROXELS_WITH_MEDIA: u32 = 5u;
 const C_VOXELS_NEEDED: u32 = 6u;
 const C_BRICKS: u32 = 7u;        // sparse grid: bricks requested this frame (allocation cursor)
 const C_TRANSMITTANCE_NODES: u32 = 8u; // shared media transmittance nodes filled
+const C_LAYER_BRICKS: u32 = 9u;  // media layer: bricks allocated this frame (allocation cursor)
+const C_LAYER_NODES: u32 = 10u;  // media layer: nodes filled this frame
 
 // Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a
 // table over all bricks holds 0 (unused), slot + 1 (allocated in the pool) or
@@ -413,6 +437,119 @@ fn sample_media(p: vec3f) -> MediumSample {
     return s;
 }
 
+// `sample_media` over the media whose `in_layer` is `layer` only.
+fn sample_media_where(p: vec3f, layer: u32) -> MediumSample {
+    var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
+    var gw = 0.0;
+    for (var i = 0u; i < frame.medium_count; i++) {
+        let m = media[i];
+        if m.in_layer != layer {
+            continue;
+        }
+        let d = medium_density(m, p);
+        if d <= 0.0 {
+            continue;
+        }
+        let ss = m.scattering * d;
+        s.scattering += ss;
+        s.extinction += (ss.x + ss.y + ss.z) / 3.0 + m.absorption * d;
+        s.emission += m.emission * d;
+        let w = ss.x + ss.y + ss.z;
+        s.g += m.g * w;
+        gw += w;
+    }
+    if gw > 0.0 {
+        s.g /= gw;
+    }
+    return s;
+}
+
+const LAYER_NODES: u32 = 729u; // 9³ per brick
+
+// Index of brick `b` (in bricks) of the layer.
+fn layer_brick_index(b: vec3u) -> u32 {
+    return b.x + frame.layer_bricks.x * (b.y + frame.layer_bricks.y * b.z);
+}
+
+struct LayerRead {
+    // Whether the layer answered (else the caller evaluates the layer's media itself).
+    found: bool,
+    s: MediumSample,
+}
+
+// The layer's media at p, trilinear between the 8 nodes around it; points outside the
+// layer's bounds hold none of its media.
+fn layer_read(p: vec3f) -> LayerRead {
+    var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), frame.layer_g);
+    let g = (p - frame.layer_min) / frame.layer_voxel;
+    let span = vec3f(frame.layer_bricks * 8u);
+    if any(g < vec3f(0.0)) || any(g > span) {
+        return LayerRead(true, s);
+    }
+    let b = min(vec3u(g / 8.0), frame.layer_bricks - 1u);
+    let t = layer_table[layer_brick_index(b)];
+    if t == 0u {
+        return LayerRead(false, s);
+    }
+    let local = clamp(g - vec3f(b * 8u), vec3f(0.0), vec3f(8.0));
+    let base = min(vec3u(floor(local)), vec3u(7u));
+    let f = local - vec3f(base);
+    let first = (t - 1u) * LAYER_NODES;
+    let extra = (frame.flags & FLAG_LAYER_EXTRA) != 0u;
+    var a = vec4f(0.0);
+    var e = vec4f(0.0);
+    for (var k = 0u; k < 8u; k++) {
+        let o = vec3<bool>((k & 1u) != 0u, (k & 2u) != 0u, (k & 4u) != 0u);
+        let q = base + select(vec3u(0u), vec3u(1u), o);
+        let w3 = select(1.0 - f, f, o);
+        let w = w3.x * w3.y * w3.z;
+        let node = layer_pool[first + q.x + 9u * (q.y + 9u * q.z)];
+        a += w * vec4f(unpack2x16float(node.x), unpack2x16float(node.y));
+        if extra {
+            e += w * vec4f(unpack2x16float(node.z), unpack2x16float(node.w));
+        }
+    }
+    s.scattering = max(a.xyz, vec3f(0.0));
+    s.extinction = max(a.w, 0.0);
+    if extra {
+        s.emission = max(e.xyz, vec3f(0.0));
+        let w = (s.scattering.x + s.scattering.y + s.scattering.z) / 3.0;
+        s.g = select(0.0, clamp(e.w / w, -0.999, 0.999), w > 0.0);
+    }
+    return LayerRead(true, s);
+}
+
+// The media at p as every stage reads them: with the layer on, the media in it from the
+// layer (analytically where it has no brick) and the others analytically; else all
+// analytically (`reference`).
+fn media_at(p: vec3f) -> MediumSample {
+    if (frame.flags & FLAG_LAYER) == 0u {
+        return sample_media(p);
+    }
+    var l = layer_read(p);
+    if !l.found {
+        l.s = sample_media_where(p, 1u);
+    }
+    let o = sample_media_where(p, 0u);
+    var s = l.s;
+    let wl = s.scattering.x + s.scattering.y + s.scattering.z;
+    let wo = o.scattering.x + o.scattering.y + o.scattering.z;
+    s.g = select(0.0, (s.g * wl + o.g * wo) / (wl + wo), wl + wo > 0.0);
+    s.scattering += o.scattering;
+    s.extinction += o.extinction;
+    s.emission += o.emission;
+    return s;
+}
+
+// Extinction at p of the layer's media only (from the layer where it has the brick).
+fn layer_extinction(p: vec3f) -> f32 {
+    let l = layer_read(p);
+    if l.found {
+        return l.s.extinction;
+    }
+    return sample_media_where(p, 1u).extinction;
+}
+
 // Extinction of medium `m` per unit density (grey: mean(σs) + σa, as `sample_media`).
 fn medium_extinction(m: Medium) -> f32 {
     return (m.scattering.x + m.scattering.y + m.scattering.z) / 3.0 + m.absorption;
@@ -454,9 +591,15 @@ const MAX_MARCH_STEPS: f32 = 32.0;
 
 // Optical depth ∫σt ds along p + dir·[0, dist] (dir unit): exact for homogeneous boxes,
 // spheres and constant media (σt × the length inside), midpoint quadrature with steps of
-// about `frame.media_step_m` through height fog, noisy media and volumes. Zero extinction gives 0 exactly.
+// about `frame.media_step_m` through height fog, noisy media and volumes. Zero extinction
+// gives 0 exactly. With the media layer on, the media in it are marched through the layer
+// (one lookup per step for all of them) over the stretch of the segment they span.
 fn media_optical_depth(p: vec3f, dir: vec3f, dist: f32) -> f32 {
     var tau = 0.0;
+    let layer = (frame.flags & FLAG_LAYER) != 0u;
+    // With the layer on, the stretch of the segment that crosses its media is marched
+    // through the layer once, whatever the number of media in it.
+    var lspan = vec2f(1e30, -1e30);
     for (var i = 0u; i < frame.medium_count; i++) {
         let m = media[i];
         let sigma = medium_extinction(m);
@@ -466,6 +609,10 @@ fn media_optical_depth(p: vec3f, dir: vec3f, dist: f32) -> f32 {
         let span = medium_span(m, p, dir, dist);
         let len = span.y - span.x;
         if len <= 0.0 {
+            continue;
+        }
+        if layer && m.in_layer == 1u {
+            lspan = vec2f(min(lspan.x, span.x), max(lspan.y, span.y));
             continue;
         }
         if m.kind != MEDIUM_HEIGHT && m.kind != MEDIUM_VOLUME && m.noise_frequency <= 0.0 {
@@ -479,6 +626,16 @@ fn media_optical_depth(p: vec3f, dir: vec3f, dist: f32) -> f32 {
             sum += medium_density(m, p + dir * (span.x + (k + 0.5) * h));
         }
         tau += sigma * sum * h;
+    }
+    let len = lspan.y - lspan.x;
+    if len > 0.0 {
+        let n = clamp(ceil(len / frame.media_step_m), 1.0, MAX_MARCH_STEPS);
+        let h = len / n;
+        var sum = 0.0;
+        for (var k = 0.0; k < n; k += 1.0) {
+            sum += layer_extinction(p + dir * (lspan.x + (k + 0.5) * h));
+        }
+        tau += sum * h;
     }
     return tau;
 }

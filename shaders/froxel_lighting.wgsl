@@ -63,7 +63,7 @@ fn grid_visibility(p: vec3f) -> GridVisibility {
 // The radiance source and extinction of froxel (xy, slice) of view `v` at `p`, seen
 // along `dir` (the column's view ray); adds the shadow rays it traced to `rays`.
 fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<function, u32>) -> vec4f {
-    let m = sample_media(p);
+    let m = media_at(p);
     if m.extinction <= 0.0 && all(m.emission <= vec3f(0.0)) {
         return vec4f(0.0);
     }

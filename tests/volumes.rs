@@ -295,3 +295,80 @@ fn a_moving_volume_refills_the_shared_transmittance_every_frame() {
         );
     }
 }
+
+/// The world media layer (issue 14): `shared` reads the volume's density from bricks
+/// filled once per frame instead of evaluating noise per froxel and pixel. The image
+/// stays what per-sample evaluation gives; the fill is the same work for one viewer as
+/// for four looking the same way; moving media refill what is seen every frame, static
+/// ones only new bricks; the bricks in use take less memory than a dense grid.
+#[test]
+fn the_media_layer_is_filled_once_per_frame_for_every_viewer() {
+    const SIZE: (u32, u32) = (160, 90);
+    let scene = Arc::new(load(CLOUD));
+    let bvh = Bvh::build(&scene.mesh).unwrap();
+    let cams = cameras(&scene);
+    let with = |media_voxel_m: f32| Settings {
+        mode: Mode::Shared,
+        voxel_size_m: scene.render.voxel_size_m,
+        media_voxel_m,
+        ..Settings::default()
+    };
+    let render = |settings: Settings, cams: &[Camera], times: &[f32]| {
+        let mut r = Renderer::with_bvh(gpu(), scene.clone(), &bvh, settings).unwrap();
+        times
+            .iter()
+            .map(|&t| r.render(cams, SIZE.0, SIZE.1, t).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let layer = render(with(0.25), &cams, &[1.5, 1.6]);
+    let analytic = render(with(0.0), &cams, &[1.5]);
+    let s = &layer[0].stats;
+    assert!(s.layer_bricks_filled > 0 && s.layer_nodes_filled == s.layer_bricks_filled * 729);
+    assert_eq!(
+        analytic[0].stats.layer_pool_bricks, 0,
+        "media_voxel_m=0: no layer"
+    );
+    assert!(
+        s.layer_bytes_in_use < s.layer_dense_bytes,
+        "bricks in use {} B vs dense {} B",
+        s.layer_bytes_in_use,
+        s.layer_dense_bytes
+    );
+    // The volume moves: the second frame refills what is seen.
+    assert!(layer[1].stats.layer_bricks_filled > 0);
+    for (a, b) in layer[0].images.iter().zip(&analytic[0].images) {
+        let flip = compare(b, a, SIZE.0, SIZE.1).unwrap().flip_mean;
+        println!("layer vs analytic: mean FLIP {flip:.4}");
+        assert!(flip <= 0.02, "layer vs analytic mean FLIP {flip:.4}");
+    }
+    // One viewer or four with the same view: the same bricks, one mark and one fill.
+    let one = render(with(0.25), &cams[..1], &[1.5]);
+    let four = render(with(0.25), &[cams[0]; 4], &[1.5]);
+    assert_eq!(
+        one[0].stats.layer_bricks_filled,
+        four[0].stats.layer_bricks_filled
+    );
+    for f in [&one[0], &four[0]] {
+        let passes = f
+            .stats
+            .dispatches
+            .iter()
+            .filter(|(n, _)| n == "media_layer");
+        assert_eq!(passes.count(), 2, "mark and fill once per frame");
+    }
+    // Standing still, the layer keeps its bricks: the second frame fills none.
+    let still = Arc::new(load(&CLOUD.replace(
+        "motion = { velocity = [0.4, 0.0, 0.2], period_s = 10.0 }",
+        "",
+    )));
+    let bvh_still = Bvh::build(&still.mesh).unwrap();
+    let mut r = Renderer::with_bvh(gpu(), still.clone(), &bvh_still, with(0.25)).unwrap();
+    let first = r.render(&cams, SIZE.0, SIZE.1, 0.0).unwrap();
+    let second = r.render(&cams, SIZE.0, SIZE.1, 0.1).unwrap();
+    assert!(first.stats.layer_bricks_filled > 0);
+    assert_eq!(second.stats.layer_bricks_filled, 0);
+    assert_eq!(
+        second.stats.layer_bricks_in_use,
+        first.stats.layer_bricks_filled
+    );
+}

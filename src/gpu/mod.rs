@@ -3,6 +3,10 @@
 use anyhow::{anyhow, Context as _};
 use wgpu::util::DeviceExt as _;
 
+/// Storage buffers a compute stage binds at most: the scene's group 0 (12) and the
+/// stage's own group (6).
+const STORAGE_BUFFERS_NEEDED: u32 = 18;
+
 /// The wgpu device and queue fogcast renders with, and what the adapter can do.
 pub struct GpuContext {
     /// The device.
@@ -75,12 +79,20 @@ impl GpuContext {
             required_features |= wgpu::Features::SUBGROUP;
         }
         let adapter_limits = adapter.limits();
+        // Group 0 (the scene, 12 buffers) and a stage's own group (at most 6) together.
+        anyhow::ensure!(
+            adapter_limits.max_storage_buffers_per_shader_stage >= STORAGE_BUFFERS_NEEDED,
+            "the adapter {} binds {} storage buffers per shader stage; fogcast needs {}",
+            info.name,
+            adapter_limits.max_storage_buffers_per_shader_stage,
+            STORAGE_BUFFERS_NEEDED
+        );
         let required_limits = wgpu::Limits {
             max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size,
             max_buffer_size: adapter_limits.max_buffer_size,
             max_storage_buffers_per_shader_stage: adapter_limits
                 .max_storage_buffers_per_shader_stage
-                .min(16),
+                .min(32),
             max_texture_array_layers: adapter_limits.max_texture_array_layers,
             max_compute_workgroups_per_dimension: adapter_limits
                 .max_compute_workgroups_per_dimension,

@@ -12,9 +12,11 @@ pub(crate) const FLAG_CACHE: u32 = 64;
 pub(crate) const FLAG_SPARSE: u32 = 128;
 pub(crate) const FLAG_CULL: u32 = 256;
 pub(crate) const FLAG_MEDIA_T: u32 = 512;
+pub(crate) const FLAG_LAYER: u32 = 1024;
+pub(crate) const FLAG_LAYER_EXTRA: u32 = 4096;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
-pub(crate) const COUNTERS: usize = 9;
+pub(crate) const COUNTERS: usize = 11;
 pub(crate) const C_GRID_RAYS: usize = 0;
 pub(crate) const C_FRUSTUM_RAYS: usize = 1;
 pub(crate) const C_LIGHTING_RAYS: usize = 2;
@@ -24,6 +26,8 @@ pub(crate) const C_FROXELS_WITH_MEDIA: usize = 5;
 pub(crate) const C_VOXELS_NEEDED: usize = 6;
 pub(crate) const C_BRICKS: usize = 7;
 pub(crate) const C_TRANSMITTANCE_NODES: usize = 8;
+pub(crate) const C_LAYER_BRICKS: usize = 9;
+pub(crate) const C_LAYER_NODES: usize = 10;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -52,6 +56,15 @@ pub(crate) struct FrameGpu {
     pub transmittance_dirty: u32,
     pub moved_max: [f32; 3],
     pub media_step_m: f32,
+    /// The world media layer (media_layer.rs): its origin, voxel edge, bricks a side,
+    /// pool slots, this frame's fill stamp, and the g of every medium in it.
+    pub layer_min: [f32; 3],
+    pub layer_voxel: f32,
+    pub layer_bricks: [u32; 3],
+    pub layer_capacity: u32,
+    pub layer_stamp: u32,
+    pub layer_g: f32,
+    pub _layer_pad: [u32; 2],
 }
 
 #[repr(C)]
@@ -140,7 +153,8 @@ pub(crate) struct MediumGpu {
     pub noise_frequency: f32,
     pub noise_octaves: u32,
     pub noise_amplitude: f32,
-    pub _pad: u32,
+    /// 1: read from the world media layer where it holds the point (media_layer.rs).
+    pub in_layer: u32,
     // Volume primitives (kind 4); zero otherwise.
     pub center: [f32; 3],
     pub period_s: f32,
@@ -185,7 +199,7 @@ impl From<&Medium> for MediumGpu {
             noise_frequency: m.noise.frequency,
             noise_octaves: m.noise.octaves,
             noise_amplitude: m.noise.amplitude,
-            _pad: 0,
+            in_layer: 0,
             center: v.center.to_array(),
             period_s: v.period_s,
             velocity: v.velocity.to_array(),
@@ -198,7 +212,7 @@ impl From<&Medium> for MediumGpu {
     }
 }
 
-const _: () = assert!(std::mem::size_of::<FrameGpu>() == 144);
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 192);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);

@@ -15,6 +15,7 @@ mod gbuffer;
 mod gpu_types;
 #[cfg(test)]
 mod history_tests;
+mod media_layer;
 mod media_transmittance;
 mod ray_query;
 mod readback;
@@ -238,6 +239,7 @@ impl Renderer {
         f.world(Stage::ShadowMaps, |e, _| {
             world.add_shadow_maps(e, time_s, ts)
         });
+        f.world(Stage::MediaLayer, |e, _| world.add_media_layer(e, ts));
         f.world(Stage::MediaTransmittance, |e, _| {
             world.add_transmittance(e, &frame, ts)
         });
@@ -418,6 +420,11 @@ fn dispatches(
         let groups: Vec<[u32; 3]> = match stage {
             Stage::GBuffer => Vec::new(),
             Stage::ShadowMaps => vec![[0, 0, 0]],
+            Stage::MediaLayer => world
+                .layer
+                .iter()
+                .flat_map(|l| [l.mark_workgroups(), l.fill_workgroups()])
+                .collect(),
             Stage::MediaTransmittance => vec![world.transmittance.workgroups()],
             Stage::SharedGrid => world.grid.iter().map(|g| g.workgroups()).collect(),
             Stage::GridRequests | Stage::FroxelLighting | Stage::VolumeIntegration => {

@@ -1,6 +1,7 @@
 //! Scene data on the GPU, shared by every stage (bind group 0) and the raster.
 
 use super::gpu_types::{FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ViewGpu, COUNTERS};
+use super::media_layer::{LayerBuffers, LayerPlan};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, GpuBvhNode, GpuTriangle, Scene, TriangleMesh};
@@ -108,6 +109,8 @@ pub(crate) struct SceneGpu {
     /// volumes' headers.
     media_t: wgpu::Buffer,
     light_media: wgpu::Buffer,
+    /// The world media layer's table, pool and slots (media_layer.rs).
+    pub layer: LayerBuffers,
     /// Nodes, triangles and raster vertices of the static scene; the movers' follow.
     static_nodes: u32,
     static_tris: u32,
@@ -179,14 +182,25 @@ impl SceneGpu {
     }
 
     /// `light_media`: the media transmittance volumes' layout (`media_transmittance::plan`).
+    /// `layer`: the world media layer's plan (`media_layer::plan`), if there is one.
     pub(crate) fn new(
         ctx: &GpuContext,
         scene: &Scene,
         bvh: &Bvh,
         light_media: &[LightMediaGpu],
+        layer: Option<&LayerPlan>,
     ) -> anyhow::Result<SceneGpu> {
         let lights: Vec<LightGpu> = scene.lights.iter().map(LightGpu::from).collect();
-        let media: Vec<MediumGpu> = scene.media.iter().map(MediumGpu::from).collect();
+        let media: Vec<MediumGpu> = scene
+            .media
+            .iter()
+            .enumerate()
+            .map(|(i, m)| MediumGpu {
+                in_layer: u32::from(layer.is_some_and(|l| l.in_layer[i])),
+                ..MediumGpu::from(m)
+            })
+            .collect();
+        let layer_buffers = LayerBuffers::new(ctx, layer)?;
         let frame = ctx.storage(
             "frame",
             std::mem::size_of::<FrameGpu>() as u64,
@@ -231,7 +245,8 @@ impl SceneGpu {
         let layout = ctx.storage_layout(
             "scene",
             &[
-                Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite, Read,
+                Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite,
+                ReadWrite, ReadWrite,
             ],
         );
 
@@ -260,6 +275,9 @@ impl SceneGpu {
         if media_t_bytes > 0 {
             memory.push(("media_transmittance", media_t.size()));
         }
+        if let Some(l) = layer {
+            memory.push(("media_layer", l.bytes()));
+        }
         let bind_group = ctx.bind_buffers(
             "scene",
             &layout,
@@ -273,9 +291,13 @@ impl SceneGpu {
                 &counters,
                 &media_t,
                 &light_media,
+                &layer_buffers.table,
+                &layer_buffers.pool,
+                &layer_buffers.slots,
             ],
         );
         Ok(SceneGpu {
+            layer: layer_buffers,
             frame,
             views,
             counters,
@@ -336,6 +358,9 @@ impl SceneGpu {
                 &self.counters,
                 &self.media_t,
                 &self.light_media,
+                &self.layer.table,
+                &self.layer.pool,
+                &self.layer.slots,
             ],
         )
     }

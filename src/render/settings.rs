@@ -186,6 +186,15 @@ settings! {
     transmittance_voxel_m: f32 = default_transmittance_voxel_m(),
         was "tvoxel", "transmittance_voxel";
 
+    /// Voxel edge of the world media layer, metres (`shared` only; 0: every froxel,
+    /// pixel and transmittance column evaluates the media itself, as `reference` does).
+    ///
+    /// Height fog, noisy media and volumes are filled once per frame into sparse bricks
+    /// where some viewer looks, and read with one trilinear lookup
+    /// (src/render/media_layer.rs).
+    #[serde(default)]
+    media_voxel_m: f32 = 0.25, was "media_voxel";
+
     /// Quadrature step of a shadow ray through height and noisy media, metres.
     ///
     /// At most 32 steps per medium; homogeneous media are integrated exactly.
@@ -513,6 +522,12 @@ impl Settings {
             self.shadow_map_px == 0 || (64..=8192).contains(&self.shadow_map_px),
             "shadow_map_px={}: must be 0 (rays) or 64..=8192 texels a side",
             self.shadow_map_px
+        );
+        anyhow::ensure!(
+            self.media_voxel_m == 0.0
+                || (self.media_voxel_m.is_finite() && self.media_voxel_m >= 0.01),
+            "media_voxel_m={}: must be 0 (evaluate the media per sample) or at least 0.01 m",
+            self.media_voxel_m
         );
         anyhow::ensure!(
             self.transmittance_voxel_m == 0.0

@@ -17,6 +17,8 @@ pub enum Stage {
     GBuffer,
     /// Shared shadow maps of the directional lights (world).
     ShadowMaps,
+    /// The media filled into the sparse world media layer (world, paper 004).
+    MediaLayer,
     /// Optical depth of the media toward every light (world).
     MediaTransmittance,
     /// Hidden-froxel culling and the froxels' voxel requests (per viewer set; the sparse
@@ -46,9 +48,10 @@ pub enum Scope {
 
 impl Stage {
     /// Every stage, in the order the frame records them.
-    pub const ALL: [Stage; 9] = [
+    pub const ALL: [Stage; 10] = [
         Stage::GBuffer,
         Stage::ShadowMaps,
+        Stage::MediaLayer,
         Stage::MediaTransmittance,
         Stage::GridRequests,
         Stage::SharedGrid,
@@ -63,6 +66,7 @@ impl Stage {
         match self {
             Stage::GBuffer => "gbuffer",
             Stage::ShadowMaps => "shadow_maps",
+            Stage::MediaLayer => "media_layer",
             Stage::MediaTransmittance => "media_transmittance",
             Stage::GridRequests => "grid_requests",
             Stage::SharedGrid => "shared_grid",
@@ -83,7 +87,8 @@ impl Stage {
     pub const fn is_fog(self) -> bool {
         matches!(
             self,
-            Stage::MediaTransmittance
+            Stage::MediaLayer
+                | Stage::MediaTransmittance
                 | Stage::GridRequests
                 | Stage::SharedGrid
                 | Stage::ShadowFrustum
@@ -95,7 +100,10 @@ impl Stage {
     /// Whether the stage runs once for the world or once per viewer set.
     pub const fn scope(self) -> Scope {
         match self {
-            Stage::ShadowMaps | Stage::MediaTransmittance | Stage::SharedGrid => Scope::World,
+            Stage::ShadowMaps
+            | Stage::MediaLayer
+            | Stage::MediaTransmittance
+            | Stage::SharedGrid => Scope::World,
             _ => Scope::Viewers,
         }
     }

@@ -1,6 +1,7 @@
 //! Per-frame counters: rays per stage, voxels traced, dispatch sizes, memory, timings.
 
 use super::gpu_types::*;
+use super::media_layer::BRICK_BYTES;
 use super::{Settings, Stage, ViewerVolumes, World};
 use serde::{Deserialize, Serialize};
 
@@ -105,6 +106,26 @@ pub struct FrameStats {
     /// static scene after the first frame, and always in `reference`, which marches).
     #[serde(default)]
     pub transmittance_nodes: u64,
+    /// World media layer: bricks filled this frame (static media: only bricks newly
+    /// seen; moving media: every brick seen).
+    #[serde(default)]
+    pub layer_bricks_filled: u64,
+    /// World media layer: nodes evaluated this frame (729 per brick filled).
+    #[serde(default)]
+    pub layer_nodes_filled: u64,
+    /// World media layer: bricks holding media after this frame.
+    #[serde(default)]
+    pub layer_bricks_in_use: u64,
+    /// World media layer: bricks its pool holds at most (0: no layer).
+    #[serde(default)]
+    pub layer_pool_bricks: u64,
+    /// Bytes of the layer's bricks in use.
+    #[serde(default)]
+    pub layer_bytes_in_use: u64,
+    /// Bytes a dense grid of the same nodes over the layer's extent would take (what
+    /// the bricks replace).
+    #[serde(default)]
+    pub layer_dense_bytes: u64,
     /// Bytes of the light masks of a dense grid over the media box (what a sparse grid
     /// avoids; equal to the grid's words when dense).
     pub grid_dense_bytes: u64,
@@ -141,6 +162,8 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
     let c = |k: usize| i.counters[k] as u64;
     let w = i.world;
     let grid = w.grid.as_ref();
+    let layer = w.layer.as_ref();
+    let layer_bricks_in_use = layer.map_or(0, |l| l.record_filled(c(C_LAYER_BRICKS)));
     let mut rays = RayCounts {
         shared_grid: c(C_GRID_RAYS),
         shadow_frustum: c(C_FRUSTUM_RAYS),
@@ -201,6 +224,12 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         voxels_needed: c(C_VOXELS_NEEDED),
         froxels_with_media: c(C_FROXELS_WITH_MEDIA),
         transmittance_nodes: c(C_TRANSMITTANCE_NODES),
+        layer_bricks_filled: c(C_LAYER_BRICKS),
+        layer_nodes_filled: c(C_LAYER_NODES),
+        layer_bricks_in_use,
+        layer_pool_bricks: layer.map_or(0, |l| u64::from(l.plan().capacity)),
+        layer_bytes_in_use: layer_bricks_in_use * BRICK_BYTES,
+        layer_dense_bytes: layer.map_or(0, |l| l.plan().dense_bytes()),
         grid_dense_bytes: grid.map_or(0, |g| g.dense_bytes()),
         grid_pool_bricks: grid.map_or(0, |g| g.pool_capacity() as u64),
         grid_bricks_requested: if grid.is_some_and(|g| g.is_sparse()) {

@@ -5,6 +5,7 @@
 //! any viewer set reads them.
 
 use super::gpu_types::*;
+use super::media_layer::{self, MediaLayer};
 use super::media_transmittance::{self, MediaTransmittance};
 use super::scene_gpu::SceneGpu;
 use super::shadow_maps::ShadowMaps;
@@ -54,6 +55,8 @@ pub struct World {
     pub(crate) grid: Option<SharedShadowGrid>,
     pub(crate) shadow_maps: ShadowMaps,
     pub(crate) transmittance: MediaTransmittance,
+    /// The world media layer (`shared` with costly media; media_layer.rs).
+    pub(crate) layer: Option<MediaLayer>,
     /// The lights as last uploaded (animated lights move; a change marks the light dirty).
     lights_uploaded: Option<Vec<LightGpu>>,
     /// Scene time of the movers as last uploaded.
@@ -81,7 +84,12 @@ impl World {
                 0.0
             },
         );
-        let gpu = SceneGpu::new(&ctx, &scene, bvh, &light_media)?;
+        let layer_plan = if shared {
+            media_layer::plan(&scene, settings.media_voxel_m)
+        } else {
+            None
+        };
+        let gpu = SceneGpu::new(&ctx, &scene, bvh, &light_media, layer_plan.as_ref())?;
         let grid = match scene.media_bounds() {
             Some(bounds) if shared && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
                 &ctx,
@@ -99,6 +107,7 @@ impl World {
                 if shared { settings.shadow_map_px } else { 0 },
             ),
             transmittance: MediaTransmittance::new(&ctx, &gpu.layout, &scene, &light_media),
+            layer: layer_plan.map(|p| MediaLayer::new(&ctx, &gpu.layout, p)),
             triangles: bvh.triangle_count()
                 + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
             gpu,
@@ -121,6 +130,9 @@ impl World {
         self.movers_time = None;
         self.shadow_maps.invalidate();
         self.transmittance.invalidate();
+        if let Some(l) = &mut self.layer {
+            l.invalidate();
+        }
     }
 
     /// Whether the scene has media (else no froxel stage runs).
@@ -179,6 +191,16 @@ impl World {
         if self.transmittance.in_use() {
             flags |= FLAG_MEDIA_T;
         }
+        let layer = self
+            .layer
+            .as_mut()
+            .map(|l| (l.next_stamp(), l.plan().clone()));
+        if let Some((_, p)) = &layer {
+            flags |= FLAG_LAYER;
+            if p.extra {
+                flags |= FLAG_LAYER_EXTRA;
+            }
+        }
         // Only where the culling passes run: a grid exists (media and lights).
         if s.culls_hidden_froxels() && self.grid.is_some() {
             flags |= FLAG_CULL;
@@ -215,6 +237,13 @@ impl World {
             transmittance_dirty,
             moved_max: moved.1.to_array(),
             media_step_m: s.media_step_m,
+            layer_min: layer.as_ref().map_or([0.0; 3], |(_, p)| p.min.to_array()),
+            layer_voxel: layer.as_ref().map_or(1.0, |(_, p)| p.voxel_m),
+            layer_bricks: layer.as_ref().map_or([1; 3], |(_, p)| p.bricks.to_array()),
+            layer_capacity: layer.as_ref().map_or(0, |(_, p)| p.capacity),
+            layer_stamp: layer.as_ref().map_or(0, |(s, _)| *s),
+            layer_g: layer.as_ref().map_or(0.0, |(_, p)| p.g),
+            _layer_pad: [0; 2],
         })
     }
 
@@ -242,6 +271,19 @@ impl World {
         let (ctx, scene, gpu) = (&self.ctx, &self.scene, &self.gpu);
         self.shadow_maps
             .add_passes(ctx, enc, scene, gpu, time_s, ts)
+    }
+
+    /// Records the world media layer's mark and fill (every frame it exists: new views
+    /// may need new bricks; moving media refill what is seen).
+    pub(crate) fn add_media_layer(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        ts: &Timestamps,
+    ) -> bool {
+        let (gpu, layer) = (&self.gpu, &mut self.layer);
+        layer
+            .as_mut()
+            .is_some_and(|l| l.add_passes(enc, &gpu.bind_group, &gpu.layer, ts))
     }
 
     /// Records the media transmittance toward the lights whose volume is stale.

@@ -1,0 +1,348 @@
+//! The world media layer, with `shaders/media_layer.wgsl`: the media filled once per
+//! frame into sparse bricks for every viewer (paper 004's metavoxels), so that a froxel,
+//! a surface or a transmittance column reads σs, σt, emission and g with one trilinear
+//! lookup instead of evaluating noise (`media_at` in common.wgsl).
+//!
+//! The layer spans the bounds of the media it holds in bricks of 8³ voxels; a brick is
+//! filled only where some medium of the layer covers it *and* some viewer's frustum
+//! reaches it (004's eye culling, over the union of every viewer of every size), into a
+//! pool sized for the bricks the media can cover. Static media are filled once: a brick
+//! keeps its slot while new views add bricks. Moving media (wind in the noise, a volume
+//! on a path) empty the table every frame and refill what is seen.
+//!
+//! Which media go in: those that cost to evaluate (height fog, noise, `[[volume]]`s) and
+//! are at least [`MIN_VOXELS_ACROSS`] voxels across. Homogeneous boxes and spheres are
+//! exact and cheap analytically, and a medium smaller than a few voxels would be smeared
+//! by the trilinear read (a 1 mm puff in a 0.25 m voxel), so those stay analytic.
+//!
+//! Where the layer has no brick (pool full, a point outside every frustum) readers
+//! evaluate the layer's media analytically: the layer changes the cost, never the
+//! result beyond its interpolation. Bricks that lie only between a light and a seen
+//! region are not filled: the transmittance columns cross such a brick with a few
+//! analytic samples, fewer than filling its 729 nodes (docs/decisions.md).
+
+use super::{dispatch, Stage, Timestamps};
+use crate::gpu::GpuContext;
+use crate::scene::{MediumKind, Scene};
+use glam::{UVec3, Vec3};
+use std::cell::Cell;
+
+/// Nodes per brick (9³: the corners of its 8³ voxels).
+pub(crate) const BRICK_NODES: u64 = 729;
+/// Bytes per node: σs.rgb, σt, emission.rgb, g·mean(σs) as f16.
+const NODE_BYTES: u64 = 16;
+/// Bytes of one brick in the pool.
+pub(crate) const BRICK_BYTES: u64 = BRICK_NODES * NODE_BYTES;
+/// A medium smaller than this many voxels across stays analytic.
+const MIN_VOXELS_ACROSS: f32 = 4.0;
+/// Most voxels along an axis, and most bricks in the table: past them the voxel grows.
+const MAX_VOXELS_PER_AXIS: f32 = 1024.0;
+const MAX_TABLE_BRICKS: u64 = 1 << 18;
+/// Most bytes of the pool (past it, bricks beyond the pool are evaluated where read).
+const MAX_POOL_BYTES: u64 = 128 << 20;
+
+/// Where the layer lies, how fine it is and which media it holds.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct LayerPlan {
+    pub min: Vec3,
+    pub voxel_m: f32,
+    /// Bricks a side.
+    pub bricks: UVec3,
+    /// Pool slots: the bricks the layer's media can cover, up to `MAX_POOL_BYTES`.
+    pub capacity: u32,
+    /// Per scene medium: read from the layer.
+    pub in_layer: Vec<bool>,
+    /// The g of every medium in the layer (when they agree and none emits).
+    pub g: f32,
+    /// Nodes store emission and g (the media in the layer differ in g or emit).
+    pub extra: bool,
+    /// Whether a medium in the layer moves (then the layer is refilled every frame).
+    pub animated: bool,
+}
+
+impl LayerPlan {
+    /// Bricks in the table.
+    pub(crate) fn table_bricks(&self) -> u64 {
+        self.bricks.as_u64vec3().element_product()
+    }
+
+    /// Bytes of table, slots and pool.
+    pub(crate) fn bytes(&self) -> u64 {
+        self.table_bricks() * 4 + (1 + 2 * self.capacity as u64) * 4 + self.pool_bytes()
+    }
+
+    pub(crate) fn pool_bytes(&self) -> u64 {
+        self.capacity as u64 * BRICK_BYTES
+    }
+
+    /// Bytes of a dense grid of the same nodes over the layer's whole extent (what the
+    /// bricks replace).
+    pub(crate) fn dense_bytes(&self) -> u64 {
+        (self.bricks * 8 + 1).as_u64vec3().element_product() * NODE_BYTES
+    }
+}
+
+/// Whether medium `m` costs enough to evaluate to be worth the layer.
+fn costly(m: &crate::scene::Medium) -> bool {
+    m.kind == MediumKind::Height || m.kind == MediumKind::Volume || m.noise.frequency > 0.0
+}
+
+/// Its smallest extent, metres (a volume: its diameter).
+fn smallest_extent(m: &crate::scene::Medium) -> f32 {
+    match m.volume {
+        Some(v) => 2.0 * v.radius_m,
+        None => (m.max - m.min).min_element(),
+    }
+}
+
+/// The layer for `scene` at voxels of `voxel_m` (0: no layer), or `None` when no
+/// medium goes in it.
+pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
+    if voxel_m <= 0.0 {
+        return None;
+    }
+    let candidates: Vec<usize> = (0..scene.media.len())
+        .filter(|&i| costly(&scene.media[i]))
+        .collect();
+    let bounds = |ids: &[usize]| {
+        ids.iter().fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), &i| (lo.min(scene.media[i].min), hi.max(scene.media[i].max)),
+        )
+    };
+    let (lo, hi) = bounds(&candidates);
+    if candidates.is_empty() || !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    // Coarser voxels for media kilometres wide.
+    let extent = (hi - lo).max(Vec3::splat(1e-6));
+    let mut voxel = voxel_m;
+    let bricks_of = |v: f32| (extent / (8.0 * v)).ceil().as_uvec3().max(UVec3::ONE);
+    while extent.max_element() / voxel > MAX_VOXELS_PER_AXIS
+        || bricks_of(voxel).as_u64vec3().element_product() > MAX_TABLE_BRICKS
+    {
+        voxel *= 1.25;
+    }
+    let in_layer: Vec<bool> = (0..scene.media.len())
+        .map(|i| {
+            candidates.contains(&i) && smallest_extent(&scene.media[i]) >= MIN_VOXELS_ACROSS * voxel
+        })
+        .collect();
+    let ids: Vec<usize> = (0..scene.media.len()).filter(|&i| in_layer[i]).collect();
+    if ids.is_empty() {
+        return None;
+    }
+    let (lo, hi) = bounds(&ids);
+    let bricks = ((hi - lo).max(Vec3::splat(1e-6)) / (8.0 * voxel))
+        .ceil()
+        .as_uvec3()
+        .max(UVec3::ONE);
+    // Slots: every brick some medium's box (over its whole path) touches.
+    let edge = 8.0 * voxel;
+    let mut covered = 0u64;
+    for z in 0..bricks.z {
+        for y in 0..bricks.y {
+            for x in 0..bricks.x {
+                let b_lo = lo + UVec3::new(x, y, z).as_vec3() * edge;
+                let b_hi = b_lo + Vec3::splat(edge);
+                if ids.iter().any(|&i| {
+                    let m = &scene.media[i];
+                    b_lo.cmple(m.max).all() && b_hi.cmpge(m.min).all()
+                }) {
+                    covered += 1;
+                }
+            }
+        }
+    }
+    let capacity = covered.min(MAX_POOL_BYTES / BRICK_BYTES).max(1) as u32;
+    let first = &scene.media[ids[0]];
+    let extra = ids.iter().any(|&i| {
+        let m = &scene.media[i];
+        m.g != first.g || m.emission != Vec3::ZERO
+    });
+    let animated = ids.iter().any(|&i| {
+        let m = &scene.media[i];
+        (m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
+            || m.volume.is_some_and(|v| v.velocity != Vec3::ZERO)
+    });
+    Some(LayerPlan {
+        min: lo,
+        voxel_m: voxel,
+        bricks,
+        capacity,
+        in_layer,
+        g: first.g,
+        extra,
+        animated,
+    })
+}
+
+/// The layer's buffers (bindings 9–11 of the scene's group 0).
+pub(crate) struct LayerBuffers {
+    pub table: wgpu::Buffer,
+    pub pool: wgpu::Buffer,
+    pub slots: wgpu::Buffer,
+}
+
+impl LayerBuffers {
+    /// Buffers for `plan` (16-byte stand-ins without a layer).
+    pub(crate) fn new(ctx: &GpuContext, plan: Option<&LayerPlan>) -> anyhow::Result<Self> {
+        let (table, pool, slots) = plan.map_or((16, 16, 16), |p| {
+            (
+                p.table_bricks() * 4,
+                p.pool_bytes(),
+                (1 + 2 * p.capacity as u64) * 4,
+            )
+        });
+        Ok(LayerBuffers {
+            table: ctx.storage("media layer table", table, wgpu::BufferUsages::empty())?,
+            pool: ctx.storage("media layer pool", pool, wgpu::BufferUsages::empty())?,
+            slots: ctx.storage("media layer slots", slots, wgpu::BufferUsages::empty())?,
+        })
+    }
+}
+
+/// The layer's passes and what they know of its freshness.
+pub(crate) struct MediaLayer {
+    plan: LayerPlan,
+    mark: wgpu::ComputePipeline,
+    fill: wgpu::ComputePipeline,
+    /// The table and slots hold nothing valid (first frame, after a failed frame).
+    stale: bool,
+    /// Fill stamp of the frame being recorded (never 0: slots start at 0).
+    stamp: u32,
+    /// Bricks in the pool after the last frame whose stats were read.
+    in_use: Cell<u64>,
+}
+
+impl MediaLayer {
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene_layout: &wgpu::BindGroupLayout,
+        plan: LayerPlan,
+    ) -> Self {
+        let module = super::stage_shader(
+            ctx,
+            "media_layer",
+            include_str!("../../shaders/media_layer.wgsl"),
+        );
+        MediaLayer {
+            mark: ctx.compute_pipeline_entry("media_layer mark", &module, &[scene_layout], "mark"),
+            fill: ctx.compute_pipeline_entry("media_layer fill", &module, &[scene_layout], "fill"),
+            plan,
+            stale: true,
+            stamp: 0,
+            in_use: Cell::new(0),
+        }
+    }
+
+    pub(crate) fn plan(&self) -> &LayerPlan {
+        &self.plan
+    }
+
+    /// Forgets the pool: the next frame refills every brick it needs.
+    pub(crate) fn invalidate(&mut self) {
+        self.stale = true;
+    }
+
+    /// The stamp of the frame about to be recorded (`Frame.layer_stamp`).
+    pub(crate) fn next_stamp(&mut self) -> u32 {
+        self.stamp = self.stamp.wrapping_add(1).max(1);
+        self.stamp
+    }
+
+    pub(crate) fn mark_workgroups(&self) -> [u32; 3] {
+        let groups = self.plan.table_bricks().div_ceil(64).max(1);
+        let x = groups.min(32768);
+        [x as u32, groups.div_ceil(x) as u32, 1]
+    }
+
+    pub(crate) fn fill_workgroups(&self) -> [u32; 3] {
+        let slots = u64::from(self.plan.capacity);
+        let x = slots.min(32768);
+        [x as u32, slots.div_ceil(x) as u32, 1]
+    }
+
+    /// Records the frame's mark and fill (after emptying the table when the media move
+    /// or nothing in it is valid).
+    pub(crate) fn add_passes(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &wgpu::BindGroup,
+        buffers: &LayerBuffers,
+        ts: &Timestamps,
+    ) -> bool {
+        if self.plan.animated || self.stale {
+            enc.clear_buffer(&buffers.table, 0, None);
+            enc.clear_buffer(&buffers.slots, 0, None);
+            self.in_use.set(0);
+            self.stale = false;
+        }
+        let mark = self.mark_workgroups();
+        dispatch(enc, ts, Stage::MediaLayer, &self.mark, &[scene], mark);
+        dispatch(
+            enc,
+            ts,
+            Stage::MediaLayer,
+            &self.fill,
+            &[scene],
+            self.fill_workgroups(),
+        );
+        true
+    }
+
+    /// Bricks in the pool after a frame that filled `filled` of them.
+    pub(crate) fn record_filled(&self, filled: u64) -> u64 {
+        let n = (self.in_use.get() + filled).min(u64::from(self.plan.capacity));
+        self.in_use.set(n);
+        n
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_layer_holds_costly_media_and_sizes_its_pool_by_their_cover() {
+        let colonnade = Scene::load("colonnade").unwrap();
+        let p = plan(&colonnade, 0.25).expect("noisy fog goes in the layer");
+        assert!(p.in_layer.iter().all(|&b| b));
+        assert_eq!(p.voxel_m, 0.25);
+        let (lo, hi) = colonnade.media_bounds().unwrap();
+        let span = p.bricks.as_vec3() * 8.0 * p.voxel_m;
+        assert!((p.min - lo).abs().max_element() < 1e-6);
+        assert!(span.cmpge(hi - lo).all(), "{span} covers {}", hi - lo);
+        // One box of fog covers every brick of its own bounds.
+        assert_eq!(u64::from(p.capacity), p.table_bricks());
+        assert!(p.bytes() < p.dense_bytes() * 2);
+        assert!(plan(&colonnade, 0.0).is_none());
+        // cloud: local volumes in an open courtyard: the pool is what they cover.
+        let cloud = Scene::load("cloud").unwrap();
+        let p = plan(&cloud, 0.25).expect("volumes go in the layer");
+        assert!(u64::from(p.capacity) < p.table_bricks(), "{p:?}");
+    }
+
+    #[test]
+    fn kilometre_media_get_coarser_voxels_and_tiny_ones_stay_analytic() {
+        let text = |volume: &str| {
+            format!(
+                "name = \"v\"\n[camera]\npath = [[0.0, 1.0, 8.0], [1.0, 1.0, -8.0]]\n\
+                 [[mesh]]\nkind = \"box\"\nmin = [-10.0, -0.5, -10.0]\nmax = [10.0, 0.0, 10.0]\n\
+                 [[volume]]\n{volume}\n"
+            )
+        };
+        let load = |t: &str| Scene::from_toml(t, std::path::Path::new("inline.toml")).unwrap();
+        let huge = load(&text(
+            "center = [0.0, 2.0, 0.0]\nradius = 1.0e4\nscattering = [0.05, 0.05, 0.05]",
+        ));
+        let p = plan(&huge, 0.25).unwrap();
+        assert!(p.table_bricks() <= MAX_TABLE_BRICKS);
+        assert!(p.voxel_m > 10.0, "{}", p.voxel_m);
+        assert!(p.pool_bytes() <= MAX_POOL_BYTES);
+        let tiny = load(&text(
+            "center = [0.0, 1.0, 0.0]\nradius = 0.001\nscattering = [1000.0, 1000.0, 1000.0]",
+        ));
+        assert!(plan(&tiny, 0.25).is_none(), "a 1 mm puff stays analytic");
+    }
+}
