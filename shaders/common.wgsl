@@ -43,9 +43,12 @@ struct Frame {
     layer_bricks: vec3u,
     layer_capacity: u32,
     layer_stamp: u32,
-    layer_g: f32,
-    _layer_pad0: u32,
-    _layer_pad1: u32,
+    // The first medium in the layer: with FLAG_LAYER_FULL off every medium in it has its
+    // coefficients, and a node holds the summed density alone.
+    layer_first: u32,
+    // u32 words per node: 1 (density) or 4 (σs.rgb, σt, emission.rgb, g·mean(σs), f16).
+    layer_node_words: u32,
+    _layer_pad: u32,
 }
 
 // Frame.flags
@@ -59,7 +62,7 @@ const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (s
 const FLAG_CULL: u32 = 256u;     // demand: froxels behind the depth buffer are not lit (froxel_cull.wgsl)
 const FLAG_MEDIA_T: u32 = 512u;  // transmittance toward lights from the shared volumes (else marched)
 const FLAG_LAYER: u32 = 1024u;   // media marked `in_layer` are read from the world media layer
-const FLAG_LAYER_EXTRA: u32 = 4096u; // the layer stores emission and g per node (else g = frame.layer_g)
+const FLAG_LAYER_FULL: u32 = 4096u; // layer nodes hold σs, σt, emission and g (else one density)
 
 struct View {
     view_proj: mat4x4f,
@@ -154,11 +157,13 @@ struct Medium {
 // 8³ voxels over the media's bounds, each in `layer_table` as its pool slot + 1 (0: not
 // in the pool this frame — read the media analytically there). A slot holds the brick's
 // 9³ nodes (corners of its voxels; faces are stored by both neighbours, so a trilinear
-// read never leaves its brick), 4 words each: σs.rgb, σt as f16, then emission.rgb and
-// g·mean(σs) as f16. `layer_slots`: [0] slots handed out, then per slot its brick and the
-// stamp of the frame that filled it.
+// read never leaves its brick) of `layer_node_words` words each: the summed density (f32)
+// when the layer's media share their coefficients, else σs.rgb, σt, emission.rgb and
+// g·mean(σs) as f16 (every word read is a gather on a CPU rasteriser: fewer is faster).
+// `layer_slots`: [0] slots handed out, then per slot its brick and the stamp of the
+// frame that filled it.
 @group(0) @binding(9) var<storage, read_write> layer_table: array<u32>;
-@group(0) @binding(10) var<storage, read_write> layer_pool: array<vec4u>;
+@group(0) @binding(10) var<storage, read_write> layer_pool: array<u32>;
 @group(0) @binding(11) var<storage, read_write> layer_slots: array<atomic<u32>>;
 
 // Light i's transmittance volume: dims.x·dims.y columns of dims.z nodes `spacing` apart,
@@ -480,7 +485,7 @@ struct LayerRead {
 // The layer's media at p, trilinear between the 8 nodes around it; points outside the
 // layer's bounds hold none of its media.
 fn layer_read(p: vec3f) -> LayerRead {
-    var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), frame.layer_g);
+    var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
     let g = (p - frame.layer_min) / frame.layer_voxel;
     let span = vec3f(frame.layer_bricks * 8u);
     if any(g < vec3f(0.0)) || any(g > span) {
@@ -495,7 +500,7 @@ fn layer_read(p: vec3f) -> LayerRead {
     let base = min(vec3u(floor(local)), vec3u(7u));
     let f = local - vec3f(base);
     let first = (t - 1u) * LAYER_NODES;
-    let extra = (frame.flags & FLAG_LAYER_EXTRA) != 0u;
+    let full = (frame.flags & FLAG_LAYER_FULL) != 0u;
     var a = vec4f(0.0);
     var e = vec4f(0.0);
     for (var k = 0u; k < 8u; k++) {
@@ -503,18 +508,27 @@ fn layer_read(p: vec3f) -> LayerRead {
         let q = base + select(vec3u(0u), vec3u(1u), o);
         let w3 = select(1.0 - f, f, o);
         let w = w3.x * w3.y * w3.z;
-        let node = layer_pool[first + q.x + 9u * (q.y + 9u * q.z)];
-        a += w * vec4f(unpack2x16float(node.x), unpack2x16float(node.y));
-        if extra {
-            e += w * vec4f(unpack2x16float(node.z), unpack2x16float(node.w));
+        let i = (first + q.x + 9u * (q.y + 9u * q.z)) * frame.layer_node_words;
+        if full {
+            a += w * vec4f(unpack2x16float(layer_pool[i]), unpack2x16float(layer_pool[i + 1u]));
+            e += w * vec4f(unpack2x16float(layer_pool[i + 2u]), unpack2x16float(layer_pool[i + 3u]));
+        } else {
+            a.w += w * bitcast<f32>(layer_pool[i]);
         }
     }
-    s.scattering = max(a.xyz, vec3f(0.0));
-    s.extinction = max(a.w, 0.0);
-    if extra {
+    if full {
+        s.scattering = max(a.xyz, vec3f(0.0));
+        s.extinction = max(a.w, 0.0);
         s.emission = max(e.xyz, vec3f(0.0));
         let w = (s.scattering.x + s.scattering.y + s.scattering.z) / 3.0;
         s.g = select(0.0, clamp(e.w / w, -0.999, 0.999), w > 0.0);
+    } else {
+        let m = media[frame.layer_first];
+        let d = max(a.w, 0.0);
+        s.scattering = m.scattering * d;
+        s.extinction = medium_extinction(m) * d;
+        s.emission = m.emission * d;
+        s.g = m.g;
     }
     return LayerRead(true, s);
 }

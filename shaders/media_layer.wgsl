@@ -83,6 +83,17 @@ fn mark(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) grou
     count(C_LAYER_BRICKS, allocated);
 }
 
+// The summed density of the layer's media at p (they share their coefficients).
+fn layer_density(p: vec3f) -> f32 {
+    var d = 0.0;
+    for (var i = 0u; i < frame.medium_count; i++) {
+        if media[i].in_layer == 1u {
+            d += medium_density(media[i], p);
+        }
+    }
+    return d;
+}
+
 // f16 holds up to 65504: denser media saturate there (σt 6·10⁴ m⁻¹ is opaque in 0.1 mm).
 fn f16_safe(v: vec2f) -> vec2f {
     return clamp(v, vec2f(-6.0e4), vec2f(6.0e4));
@@ -100,14 +111,17 @@ fn fill(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) groups: vec3u
         for (var i = lane; i < LAYER_NODES; i += 64u) {
             let n = vec3u(i % 9u, (i / 9u) % 9u, i / 81u);
             let p = frame.layer_min + vec3f(bc * 8u + n) * frame.layer_voxel;
-            let s = sample_media_where(p, 1u);
-            let w = (s.scattering.x + s.scattering.y + s.scattering.z) / 3.0;
-            layer_pool[slot * LAYER_NODES + i] = vec4u(
-                pack2x16float(f16_safe(s.scattering.xy)),
-                pack2x16float(f16_safe(vec2f(s.scattering.z, s.extinction))),
-                pack2x16float(f16_safe(s.emission.xy)),
-                pack2x16float(f16_safe(vec2f(s.emission.z, s.g * w))),
-            );
+            let at = (slot * LAYER_NODES + i) * frame.layer_node_words;
+            if (frame.flags & FLAG_LAYER_FULL) == 0u {
+                layer_pool[at] = bitcast<u32>(layer_density(p));
+            } else {
+                let s = sample_media_where(p, 1u);
+                let w = (s.scattering.x + s.scattering.y + s.scattering.z) / 3.0;
+                layer_pool[at] = pack2x16float(f16_safe(s.scattering.xy));
+                layer_pool[at + 1u] = pack2x16float(f16_safe(vec2f(s.scattering.z, s.extinction)));
+                layer_pool[at + 2u] = pack2x16float(f16_safe(s.emission.xy));
+                layer_pool[at + 3u] = pack2x16float(f16_safe(vec2f(s.emission.z, s.g * w)));
+            }
             filled += 1u;
         }
     }

@@ -13,7 +13,7 @@ pub(crate) const FLAG_SPARSE: u32 = 128;
 pub(crate) const FLAG_CULL: u32 = 256;
 pub(crate) const FLAG_MEDIA_T: u32 = 512;
 pub(crate) const FLAG_LAYER: u32 = 1024;
-pub(crate) const FLAG_LAYER_EXTRA: u32 = 4096;
+pub(crate) const FLAG_LAYER_FULL: u32 = 4096;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 11;
@@ -57,14 +57,15 @@ pub(crate) struct FrameGpu {
     pub moved_max: [f32; 3],
     pub media_step_m: f32,
     /// The world media layer (media_layer.rs): its origin, voxel edge, bricks a side,
-    /// pool slots, this frame's fill stamp, and the g of every medium in it.
+    /// pool slots, this frame's fill stamp, its first medium and words per node.
     pub layer_min: [f32; 3],
     pub layer_voxel: f32,
     pub layer_bricks: [u32; 3],
     pub layer_capacity: u32,
     pub layer_stamp: u32,
-    pub layer_g: f32,
-    pub _layer_pad: [u32; 2],
+    pub layer_first: u32,
+    pub layer_node_words: u32,
+    pub _layer_pad: u32,
 }
 
 #[repr(C)]

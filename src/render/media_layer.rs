@@ -29,12 +29,12 @@ use std::cell::Cell;
 
 /// Nodes per brick (9³: the corners of its 8³ voxels).
 pub(crate) const BRICK_NODES: u64 = 729;
-/// Bytes per node: σs.rgb, σt, emission.rgb, g·mean(σs) as f16.
-const NODE_BYTES: u64 = 16;
-/// Bytes of one brick in the pool.
-pub(crate) const BRICK_BYTES: u64 = BRICK_NODES * NODE_BYTES;
 /// A medium smaller than this many voxels across stays analytic.
 const MIN_VOXELS_ACROSS: f32 = 4.0;
+/// A medium denser than this optical depth across one voxel stays analytic: trilinear
+/// density across a near-opaque edge moves the edge (a σt 10⁴ m⁻¹ cloud is opaque in a
+/// tenth of a millimetre; the layer would blur it over a voxel).
+const MAX_TAU_PER_VOXEL: f32 = 2.0;
 /// Most voxels along an axis, and most bricks in the table: past them the voxel grows.
 const MAX_VOXELS_PER_AXIS: f32 = 1024.0;
 const MAX_TABLE_BRICKS: u64 = 1 << 18;
@@ -52,10 +52,11 @@ pub(crate) struct LayerPlan {
     pub capacity: u32,
     /// Per scene medium: read from the layer.
     pub in_layer: Vec<bool>,
-    /// The g of every medium in the layer (when they agree and none emits).
-    pub g: f32,
-    /// Nodes store emission and g (the media in the layer differ in g or emit).
-    pub extra: bool,
+    /// The first medium in the layer (whose coefficients all share unless `full`).
+    pub first: u32,
+    /// Nodes store σs, σt, emission and g (the layer's media differ in their
+    /// coefficients); else one f32 density per node.
+    pub full: bool,
     /// Whether a medium in the layer moves (then the layer is refilled every frame).
     pub animated: bool,
 }
@@ -72,13 +73,27 @@ impl LayerPlan {
     }
 
     pub(crate) fn pool_bytes(&self) -> u64 {
-        self.capacity as u64 * BRICK_BYTES
+        self.capacity as u64 * self.brick_bytes()
+    }
+
+    /// u32 words per node: one f32 density, or σs, σt, emission and g as 4 × 2 f16.
+    pub(crate) fn node_words(&self) -> u32 {
+        if self.full {
+            4
+        } else {
+            1
+        }
+    }
+
+    /// Bytes of one brick in the pool.
+    pub(crate) fn brick_bytes(&self) -> u64 {
+        BRICK_NODES * 4 * u64::from(self.node_words())
     }
 
     /// Bytes of a dense grid of the same nodes over the layer's whole extent (what the
     /// bricks replace).
     pub(crate) fn dense_bytes(&self) -> u64 {
-        (self.bricks * 8 + 1).as_u64vec3().element_product() * NODE_BYTES
+        (self.bricks * 8 + 1).as_u64vec3().element_product() * 4 * u64::from(self.node_words())
     }
 }
 
@@ -93,6 +108,16 @@ fn smallest_extent(m: &crate::scene::Medium) -> f32 {
         Some(v) => 2.0 * v.radius_m,
         None => (m.max - m.min).min_element(),
     }
+}
+
+/// Its largest extinction, m⁻¹ (noise scales density by at most 1 + amplitude).
+fn largest_extinction(m: &crate::scene::Medium) -> f32 {
+    let noise = if m.noise.frequency > 0.0 {
+        1.0 + m.noise.amplitude
+    } else {
+        1.0
+    };
+    (m.scattering.element_sum() / 3.0 + m.absorption) * noise
 }
 
 /// The layer for `scene` at voxels of `voxel_m` (0: no layer), or `None` when no
@@ -125,7 +150,10 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
     }
     let in_layer: Vec<bool> = (0..scene.media.len())
         .map(|i| {
-            candidates.contains(&i) && smallest_extent(&scene.media[i]) >= MIN_VOXELS_ACROSS * voxel
+            let m = &scene.media[i];
+            candidates.contains(&i)
+                && smallest_extent(m) >= MIN_VOXELS_ACROSS * voxel
+                && largest_extinction(m) * voxel <= MAX_TAU_PER_VOXEL
         })
         .collect();
     let ids: Vec<usize> = (0..scene.media.len()).filter(|&i| in_layer[i]).collect();
@@ -154,12 +182,14 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
             }
         }
     }
-    let capacity = covered.min(MAX_POOL_BYTES / BRICK_BYTES).max(1) as u32;
     let first = &scene.media[ids[0]];
-    let extra = ids.iter().any(|&i| {
+    let full = ids.iter().any(|&i| {
         let m = &scene.media[i];
-        m.g != first.g || m.emission != Vec3::ZERO
+        (m.scattering, m.absorption, m.g, m.emission)
+            != (first.scattering, first.absorption, first.g, first.emission)
     });
+    let brick_bytes = BRICK_NODES * if full { 16 } else { 4 };
+    let capacity = covered.min(MAX_POOL_BYTES / brick_bytes).max(1) as u32;
     let animated = ids.iter().any(|&i| {
         let m = &scene.media[i];
         (m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
@@ -171,8 +201,8 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
         bricks,
         capacity,
         in_layer,
-        g: first.g,
-        extra,
+        first: ids[0] as u32,
+        full,
         animated,
     })
 }
@@ -344,5 +374,9 @@ mod tests {
             "center = [0.0, 1.0, 0.0]\nradius = 0.001\nscattering = [1000.0, 1000.0, 1000.0]",
         ));
         assert!(plan(&tiny, 0.25).is_none(), "a 1 mm puff stays analytic");
+        let opaque = load(&text(
+            "center = [0.0, 1.0, 0.0]\nradius = 2.0\nscattering = [1.0e4, 1.0e4, 1.0e4]",
+        ));
+        assert!(plan(&opaque, 0.25).is_none(), "σt 10⁴ stays analytic");
     }
 }

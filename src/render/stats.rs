@@ -1,7 +1,6 @@
 //! Per-frame counters: rays per stage, voxels traced, dispatch sizes, memory, timings.
 
 use super::gpu_types::*;
-use super::media_layer::BRICK_BYTES;
 use super::{Settings, Stage, ViewerVolumes, World};
 use serde::{Deserialize, Serialize};
 
@@ -228,7 +227,7 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         layer_nodes_filled: c(C_LAYER_NODES),
         layer_bricks_in_use,
         layer_pool_bricks: layer.map_or(0, |l| u64::from(l.plan().capacity)),
-        layer_bytes_in_use: layer_bricks_in_use * BRICK_BYTES,
+        layer_bytes_in_use: layer.map_or(0, |l| layer_bricks_in_use * l.plan().brick_bytes()),
         layer_dense_bytes: layer.map_or(0, |l| l.plan().dense_bytes()),
         grid_dense_bytes: grid.map_or(0, |g| g.dense_bytes()),
         grid_pool_bricks: grid.map_or(0, |g| g.pool_capacity() as u64),

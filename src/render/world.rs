@@ -197,8 +197,8 @@ impl World {
             .map(|l| (l.next_stamp(), l.plan().clone()));
         if let Some((_, p)) = &layer {
             flags |= FLAG_LAYER;
-            if p.extra {
-                flags |= FLAG_LAYER_EXTRA;
+            if p.full {
+                flags |= FLAG_LAYER_FULL;
             }
         }
         // Only where the culling passes run: a grid exists (media and lights).
@@ -242,8 +242,9 @@ impl World {
             layer_bricks: layer.as_ref().map_or([1; 3], |(_, p)| p.bricks.to_array()),
             layer_capacity: layer.as_ref().map_or(0, |(_, p)| p.capacity),
             layer_stamp: layer.as_ref().map_or(0, |(s, _)| *s),
-            layer_g: layer.as_ref().map_or(0.0, |(_, p)| p.g),
-            _layer_pad: [0; 2],
+            layer_first: layer.as_ref().map_or(0, |(_, p)| p.first),
+            layer_node_words: layer.as_ref().map_or(1, |(_, p)| p.node_words()),
+            _layer_pad: 0,
         })
     }
 
