@@ -194,7 +194,7 @@ const C_FROXELS_WITH_MEDIA: u32 = 5u;
 const C_VOXELS_NEEDED: u32 = 6u;
 const C_BRICKS: u32 = 7u;        // sparse grid: bricks requested this frame (allocation cursor)
 const C_TRANSMITTANCE_NODES: u32 = 8u; // shared media transmittance nodes filled
-const C_LAYER_BRICKS: u32 = 9u;  // media layer: bricks allocated this frame (allocation cursor)
+const C_LAYER_BRICKS: u32 = 9u;  // media layer: bricks asked for this frame (in the pool or not)
 const C_LAYER_NODES: u32 = 10u;  // media layer: nodes filled this frame
 
 // Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a

@@ -61,7 +61,7 @@ fn layer_seen(c: vec3f, r: f32) -> bool {
 
 @compute @workgroup_size(64, 1, 1)
 fn mark(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) groups: vec3u) {
-    var allocated = 0u;
+    var requested = 0u;
     let nb = frame.layer_bricks;
     let b = gid.x + gid.y * groups.x * 64u;
     if b < nb.x * nb.y * nb.z && layer_table[b] == 0u {
@@ -71,16 +71,17 @@ fn mark(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) grou
         let hi = lo + vec3f(edge);
         if layer_covered(lo, hi) && layer_seen((lo + hi) * 0.5, 0.8660254 * edge) {
             let slot = atomicAdd(&layer_slots[0], 1u);
-            // A full pool leaves the brick out: its media are evaluated where read.
+            // A full pool leaves the brick out: its media are evaluated where read (and
+            // the pool grows for the next frame: every request is counted).
+            requested = 1u;
             if slot < frame.layer_capacity {
                 layer_table[b] = slot + 1u;
                 atomicStore(&layer_slots[1u + 2u * slot], b);
                 atomicStore(&layer_slots[2u + 2u * slot], frame.layer_stamp);
-                allocated = 1u;
             }
         }
     }
-    count(C_LAYER_BRICKS, allocated);
+    count(C_LAYER_BRICKS, requested);
 }
 
 // The summed density of the layer's media at p (they share their coefficients).

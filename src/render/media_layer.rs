@@ -40,6 +40,8 @@ const MAX_VOXELS_PER_AXIS: f32 = 1024.0;
 const MAX_TABLE_BRICKS: u64 = 1 << 18;
 /// Most bytes of the pool (past it, bricks beyond the pool are evaluated where read).
 const MAX_POOL_BYTES: u64 = 128 << 20;
+/// Pool slots at first (the pool grows to what the viewers see).
+const FIRST_POOL_BRICKS: u32 = 64;
 
 /// Where the layer lies, how fine it is and which media it holds.
 #[derive(Debug, Clone, PartialEq)]
@@ -48,8 +50,12 @@ pub(crate) struct LayerPlan {
     pub voxel_m: f32,
     /// Bricks a side.
     pub bricks: UVec3,
-    /// Pool slots: the bricks the layer's media can cover, up to `MAX_POOL_BYTES`.
+    /// Pool slots now: it starts at [`FIRST_POOL_BRICKS`] and doubles while the bricks
+    /// seen do not fit, up to `max_capacity`.
     pub capacity: u32,
+    /// The bricks the layer's media can cover (over their whole paths), up to
+    /// `MAX_POOL_BYTES`.
+    pub max_capacity: u32,
     /// Per scene medium: read from the layer.
     pub in_layer: Vec<bool>,
     /// The first medium in the layer (whose coefficients all share unless `full`).
@@ -189,7 +195,7 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
             != (first.scattering, first.absorption, first.g, first.emission)
     });
     let brick_bytes = BRICK_NODES * if full { 16 } else { 4 };
-    let capacity = covered.min(MAX_POOL_BYTES / brick_bytes).max(1) as u32;
+    let max_capacity = covered.min(MAX_POOL_BYTES / brick_bytes).max(1) as u32;
     let animated = ids.iter().any(|&i| {
         let m = &scene.media[i];
         (m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
@@ -199,7 +205,8 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
         min: lo,
         voxel_m: voxel,
         bricks,
-        capacity,
+        capacity: max_capacity.min(FIRST_POOL_BRICKS),
+        max_capacity,
         in_layer,
         first: ids[0] as u32,
         full,
@@ -241,8 +248,8 @@ pub(crate) struct MediaLayer {
     stale: bool,
     /// Fill stamp of the frame being recorded (never 0: slots start at 0).
     stamp: u32,
-    /// Bricks in the pool after the last frame whose stats were read.
-    in_use: Cell<u64>,
+    /// Bricks asked for since the table was last emptied (in the pool or not).
+    requested: Cell<u64>,
 }
 
 impl MediaLayer {
@@ -262,7 +269,7 @@ impl MediaLayer {
             plan,
             stale: true,
             stamp: 0,
-            in_use: Cell::new(0),
+            requested: Cell::new(0),
         }
     }
 
@@ -305,7 +312,7 @@ impl MediaLayer {
         if self.plan.animated || self.stale {
             enc.clear_buffer(&buffers.table, 0, None);
             enc.clear_buffer(&buffers.slots, 0, None);
-            self.in_use.set(0);
+            self.requested.set(0);
             self.stale = false;
         }
         let mark = self.mark_workgroups();
@@ -321,11 +328,32 @@ impl MediaLayer {
         true
     }
 
-    /// Bricks in the pool after a frame that filled `filled` of them.
-    pub(crate) fn record_filled(&self, filled: u64) -> u64 {
-        let n = (self.in_use.get() + filled).min(u64::from(self.plan.capacity));
-        self.in_use.set(n);
-        n
+    /// Bricks in the pool after a frame that asked for `requested` more of them.
+    pub(crate) fn record_requested(&self, requested: u64) -> u64 {
+        let n = self.requested.get() + requested;
+        self.requested.set(n);
+        n.min(u64::from(self.plan.capacity))
+    }
+
+    /// The plan with a pool that holds every brick asked for (doubled, up to the most
+    /// the media can cover), when the last frame's did not fit.
+    pub(crate) fn grown(&self) -> Option<LayerPlan> {
+        let asked = self.requested.get();
+        let p = &self.plan;
+        if asked <= u64::from(p.capacity) || p.capacity >= p.max_capacity {
+            return None;
+        }
+        let capacity = asked.next_power_of_two().min(u64::from(p.max_capacity)) as u32;
+        Some(LayerPlan {
+            capacity,
+            ..p.clone()
+        })
+    }
+
+    /// Takes the grown plan (its buffers were reallocated): the next frame starts over.
+    pub(crate) fn regrow(&mut self, plan: LayerPlan) {
+        self.plan = plan;
+        self.stale = true;
     }
 }
 
@@ -343,14 +371,15 @@ mod tests {
         let span = p.bricks.as_vec3() * 8.0 * p.voxel_m;
         assert!((p.min - lo).abs().max_element() < 1e-6);
         assert!(span.cmpge(hi - lo).all(), "{span} covers {}", hi - lo);
-        // One box of fog covers every brick of its own bounds.
-        assert_eq!(u64::from(p.capacity), p.table_bricks());
+        // One box of fog covers every brick of its own bounds; the pool starts small.
+        assert_eq!(u64::from(p.max_capacity), p.table_bricks());
+        assert!(p.capacity <= FIRST_POOL_BRICKS);
         assert!(p.bytes() < p.dense_bytes() * 2);
         assert!(plan(&colonnade, 0.0).is_none());
         // cloud: local volumes in an open courtyard: the pool is what they cover.
         let cloud = Scene::load("cloud").unwrap();
         let p = plan(&cloud, 0.25).expect("volumes go in the layer");
-        assert!(u64::from(p.capacity) < p.table_bricks(), "{p:?}");
+        assert!(u64::from(p.max_capacity) < p.table_bricks(), "{p:?}");
     }
 
     #[test]
@@ -369,7 +398,7 @@ mod tests {
         let p = plan(&huge, 0.25).unwrap();
         assert!(p.table_bricks() <= MAX_TABLE_BRICKS);
         assert!(p.voxel_m > 10.0, "{}", p.voxel_m);
-        assert!(p.pool_bytes() <= MAX_POOL_BYTES);
+        assert!(u64::from(p.max_capacity) * p.brick_bytes() <= MAX_POOL_BYTES);
         let tiny = load(&text(
             "center = [0.0, 1.0, 0.0]\nradius = 0.001\nscattering = [1000.0, 1000.0, 1000.0]",
         ));

@@ -355,6 +355,7 @@ impl Renderer {
             set.finish(&world.settings, froxels_written);
         }
         self.world.frame_index = self.world.frame_index.wrapping_add(1);
+        self.world.grow_layer()?;
         Ok(TargetsOutput { images, stats })
     }
 }

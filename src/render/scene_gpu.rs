@@ -111,6 +111,9 @@ pub(crate) struct SceneGpu {
     light_media: wgpu::Buffer,
     /// The world media layer's table, pool and slots (media_layer.rs).
     pub layer: LayerBuffers,
+    /// Bumped whenever a buffer of group 0 is reallocated: bind groups made before
+    /// must be made again.
+    pub generation: u32,
     /// Nodes, triangles and raster vertices of the static scene; the movers' follow.
     static_nodes: u32,
     static_tris: u32,
@@ -298,6 +301,7 @@ impl SceneGpu {
         );
         Ok(SceneGpu {
             layer: layer_buffers,
+            generation: 0,
             frame,
             views,
             counters,
@@ -320,6 +324,23 @@ impl SceneGpu {
             static_vertices: scene.mesh.positions.len() as u32,
             mover_node_capacity,
         })
+    }
+
+    /// Reallocates the media layer's buffers for `plan` (its pool grew) and rebinds.
+    pub(crate) fn resize_layer(
+        &mut self,
+        ctx: &GpuContext,
+        plan: &LayerPlan,
+    ) -> anyhow::Result<()> {
+        self.layer = LayerBuffers::new(ctx, Some(plan))?;
+        for (name, bytes) in &mut self.memory {
+            if *name == "media_layer" {
+                *bytes = plan.bytes();
+            }
+        }
+        self.bind_group = self.bind(ctx, &self.frame, &self.views);
+        self.generation += 1;
+        Ok(())
     }
 
     /// Grows the views buffer (and rebinds) when more viewers arrive.

@@ -191,9 +191,10 @@ settings! {
     ///
     /// Height fog, noisy media and volumes are filled once per frame into sparse bricks
     /// where some viewer looks, and read with one trilinear lookup
-    /// (src/render/media_layer.rs).
+    /// (src/render/media_layer.rs). Off by default: on lavapipe eight gathered nodes cost
+    /// more than three octaves of value noise (docs/decisions.md, "The world media layer").
     #[serde(default)]
-    media_voxel_m: f32 = 0.25, was "media_voxel";
+    media_voxel_m: f32 = 0.0, was "media_voxel";
 
     /// Quadrature step of a shadow ray through height and noisy media, metres.
     ///

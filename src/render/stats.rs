@@ -112,7 +112,8 @@ pub struct FrameStats {
     /// World media layer: nodes evaluated this frame (729 per brick filled).
     #[serde(default)]
     pub layer_nodes_filled: u64,
-    /// World media layer: bricks holding media after this frame.
+    /// World media layer: bricks holding media after this frame (the pool grows for the
+    /// next frame when the bricks seen did not fit).
     #[serde(default)]
     pub layer_bricks_in_use: u64,
     /// World media layer: bricks its pool holds at most (0: no layer).
@@ -162,7 +163,7 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
     let w = i.world;
     let grid = w.grid.as_ref();
     let layer = w.layer.as_ref();
-    let layer_bricks_in_use = layer.map_or(0, |l| l.record_filled(c(C_LAYER_BRICKS)));
+    let layer_bricks_in_use = layer.map_or(0, |l| l.record_requested(c(C_LAYER_BRICKS)));
     let mut rays = RayCounts {
         shared_grid: c(C_GRID_RAYS),
         shadow_frustum: c(C_FRUSTUM_RAYS),
@@ -223,7 +224,7 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         voxels_needed: c(C_VOXELS_NEEDED),
         froxels_with_media: c(C_FROXELS_WITH_MEDIA),
         transmittance_nodes: c(C_TRANSMITTANCE_NODES),
-        layer_bricks_filled: c(C_LAYER_BRICKS),
+        layer_bricks_filled: c(C_LAYER_NODES) / super::media_layer::BRICK_NODES,
         layer_nodes_filled: c(C_LAYER_NODES),
         layer_bricks_in_use,
         layer_pool_bricks: layer.map_or(0, |l| u64::from(l.plan().capacity)),

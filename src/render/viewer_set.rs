@@ -31,6 +31,8 @@ pub(crate) struct ViewerSet {
     /// Bind group 0 of this set's per-viewer stages: the world's buffers with this set's
     /// frame uniforms and views.
     pub(crate) bind_group: wgpu::BindGroup,
+    /// `SceneGpu::generation` the bind group was made for.
+    scene_generation: u32,
     frame: wgpu::Buffer,
     views: wgpu::Buffer,
     /// This frame's views, in slot order.
@@ -58,6 +60,7 @@ impl ViewerSet {
         Ok(ViewerSet {
             vol,
             bind_group,
+            scene_generation: scene.generation,
             frame,
             views,
             gpu_views: Vec::new(),
@@ -123,7 +126,11 @@ impl ViewerSet {
             let old = std::mem::replace(&mut self.vol, Self::volumes(ctx, settings, targets)?);
             self.history.reallocated(old, settings.temporal);
             (self.frame, self.views, self.bind_group) = Self::uniforms(ctx, scene, count)?;
+        } else if self.scene_generation != scene.generation {
+            // A scene buffer was reallocated (the media layer's pool grew): rebind.
+            self.bind_group = scene.bind(ctx, &self.frame, &self.views);
         }
+        self.scene_generation = scene.generation;
         let vol = &self.vol;
         let layout = vol.layout;
         let aspect = layout.width as f32 / layout.height as f32;

@@ -287,6 +287,24 @@ impl World {
             .is_some_and(|l| l.add_passes(enc, &gpu.bind_group, &gpu.layer, ts))
     }
 
+    /// Grows the media layer's pool when the last frame's bricks did not fit (the next
+    /// frame refills it; every bind group of the scene is made again).
+    pub(crate) fn grow_layer(&mut self) -> anyhow::Result<()> {
+        let Some(plan) = self.layer.as_ref().and_then(MediaLayer::grown) else {
+            return Ok(());
+        };
+        tracing::debug!(
+            bricks = plan.capacity,
+            mib = plan.pool_bytes() as f64 / 1048576.0,
+            "media layer pool grows"
+        );
+        self.gpu.resize_layer(&self.ctx, &plan)?;
+        if let Some(l) = &mut self.layer {
+            l.regrow(plan);
+        }
+        Ok(())
+    }
+
     /// Records the media transmittance toward the lights whose volume is stale.
     pub(crate) fn add_transmittance(
         &self,
