@@ -393,7 +393,7 @@ mod tests {
         };
         let load = |t: &str| Scene::from_toml(t, std::path::Path::new("inline.toml")).unwrap();
         let huge = load(&text(
-            "center = [0.0, 2.0, 0.0]\nradius = 1.0e4\nscattering = [0.05, 0.05, 0.05]",
+            "center = [0.0, 2.0, 0.0]\nradius = 1.0e4\nscattering = [0.005, 0.005, 0.005]",
         ));
         let p = plan(&huge, 0.25).unwrap();
         assert!(p.table_bricks() <= MAX_TABLE_BRICKS);

@@ -273,7 +273,7 @@ mod tests {
         names.sort();
         names.dedup();
         assert_eq!(names.len(), Stage::ALL.len());
-        assert_eq!(Stage::fog_names().count(), 6);
+        assert_eq!(Stage::fog_names().count(), 7);
     }
 
     #[test]
@@ -282,6 +282,8 @@ mod tests {
         assert!(at(Stage::GridRequests) < at(Stage::SharedGrid));
         assert!(at(Stage::SharedGrid) < at(Stage::FroxelLighting));
         assert!(at(Stage::MediaTransmittance) < at(Stage::FroxelLighting));
+        // The transmittance columns read the media layer.
+        assert!(at(Stage::MediaLayer) < at(Stage::MediaTransmittance));
         assert!(at(Stage::ShadowMaps) < at(Stage::ShadowFrustum));
     }
 }
