@@ -48,6 +48,7 @@ const FLAG_CACHE: u32 = 64u;     // grid: keep voxels' light bits until a light 
 const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (sparse)
 const FLAG_CULL: u32 = 256u;     // demand: froxels behind the depth buffer are not lit (froxel_cull.wgsl)
 const FLAG_MEDIA_T: u32 = 512u;  // transmittance toward lights from the shared volumes (else marched)
+const FLAG_MAPS: u32 = 2048u;    // mode `maps`: froxels read the shared shadow maps (no grid, no rays)
 
 struct View {
     view_proj: mat4x4f,

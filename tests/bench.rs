@@ -1,8 +1,9 @@
-//! `fogcast bench` at a small size on `colonnade`: 1 and 4 viewers, `reference` and
-//! `shared`, through the library. Checks that `bench.json` has every field with finite
-//! values, and the ray counts issue 5 is about — deterministic numbers, so no timing is
-//! asserted: `reference` rays grow about linearly, `shared` rays sub-linearly, and
-//! `shared` traces fewer than `reference` at 4 viewers.
+//! `fogcast bench` at a small size on `colonnade`: 1 and 4 viewers, `reference`, `shared`
+//! and `maps`, through the library. Checks that `bench.json` has every field with finite
+//! values (FLIP against `truth` on the one image it is measured on), and the ray counts
+//! issue 5 is about — deterministic numbers, so no timing is asserted: `reference` rays
+//! grow about linearly, `shared` rays sub-linearly, `shared` traces fewer than
+//! `reference` at 4 viewers, and `maps` traces none.
 
 use fogcast::bench::{configurations, run, BenchConfig};
 use fogcast::render::Mode;
@@ -49,7 +50,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         viewers: vec![1, 4],
         // `shared` with its defaults, and the paper's method as published.
         configs: configurations(
-            &[Mode::Reference, Mode::Shared],
+            &[Mode::Reference, Mode::Shared, Mode::Maps],
             &["paper:demand=off,cache=off,shadow_map_px=0".to_string()],
             VOXEL_SIZE_M,
         )
@@ -61,6 +62,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         time_s: 0.0,
         overlaps_pct: vec![50.0],
         overlap_viewers: vec![2],
+        truth: true,
         out: out.clone(),
         command: "tests/bench.rs".into(),
     };
@@ -72,7 +74,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     .expect("bench runs");
     assert_eq!(
         progressed.into_inner(),
-        3 * 3 * (1 + 4 + 2),
+        4 * 3 * (1 + 4 + 2),
         "progress reaches every viewer-frame"
     );
     for file in [
@@ -98,8 +100,8 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     let points = json["points"].as_array().expect("points");
     assert_eq!(
         points.len(),
-        3 * 3,
-        "(1, 4 viewers + 2 overlapping) × 3 configurations"
+        3 * 4,
+        "(1, 4 viewers + 2 overlapping) × 4 configurations"
     );
     let find = |scenario: &str, config: &str, viewers: u64| -> &Value {
         points
@@ -113,6 +115,14 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     };
     for p in points {
         let shared = p["mode"] == "shared";
+        let maps = p["mode"] == "maps";
+        // FLIP against truth: on the 1-viewer path point only, for every configuration.
+        if p["scenario"]["kind"] == "path" && p["viewers"] == 1 {
+            let f = number(p, "flip_vs_truth");
+            assert!(f > 0.0 && f <= 0.05, "FLIP vs truth {f}: {p}");
+        } else {
+            assert!(p["flip_vs_truth"].is_null(), "{p}");
+        }
         for key in [
             "viewers",
             "frames",
@@ -168,6 +178,16 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
                 number(p, "flip_vs_reference.images"),
                 viewers * 2.0,
                 "every viewer of every measured frame"
+            );
+        } else if maps {
+            // No grid, no frustum, no rays; the same picture as reference.
+            assert!(!names.contains(&"shared_grid") && !names.contains(&"shadow_frustum"));
+            assert_eq!(p["grid_dims"][0].as_u64(), Some(0), "{p}");
+            assert_eq!(number(p, "rays.total"), 0.0, "{p}");
+            let flip = number(p, "flip_vs_reference.mean");
+            assert!(
+                flip > 0.0 && flip <= 0.05,
+                "maps vs reference mean FLIP {flip}"
             );
         } else {
             assert!(!names.contains(&"shared_grid"));

@@ -20,7 +20,7 @@ pub struct BenchArgs {
         long,
         value_enum,
         value_delimiter = ',',
-        default_value = "reference,shared"
+        default_value = "reference,shared,maps"
     )]
     pub modes: Vec<Mode>,
     /// A further `shared` configuration, `name:key=value,…` over its defaults, keyed as
@@ -49,6 +49,10 @@ pub struct BenchArgs {
     /// Viewer counts of the fixed-overlap scenario.
     #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
     pub overlap_viewers: Vec<usize>,
+    /// Measure every configuration's error against `truth` (the CPU renderer) on one
+    /// image: the first viewer of the first measured frame at the fewest path viewers.
+    #[arg(long, default_value = "on", value_parser = clap::builder::BoolishValueParser::new(), action = clap::ArgAction::Set)]
+    pub truth: bool,
     /// Output folder [default: out/bench/<scene file stem>].
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -90,6 +94,7 @@ impl BenchArgs {
             time_s: self.time,
             overlaps_pct: self.overlap.clone(),
             overlap_viewers: self.overlap_viewers.clone(),
+            truth: self.truth,
             out,
             command,
         })

@@ -1,10 +1,10 @@
 //! `fogcast bench`: how each cost grows with the number of viewers (paper 000 §4.2,
 //! Tables 1–3, Figures 11–14).
 //!
-//! For every viewer count, every configuration (`reference`, `shared`, variants) renders
-//! the same cameras at the same scene times; the configurations take turns frame by
-//! frame (the order reversed every other frame) so that noise from other processes falls
-//! on all of them alike. Two camera scenarios:
+//! For every viewer count, every configuration (`reference`, `shared`, `maps`, variants)
+//! renders the same cameras at the same scene times; the configurations take turns frame
+//! by frame (the order reversed every other frame) so that noise from other processes
+//! falls on all of them alike. Two camera scenarios:
 //!
 //! - **path**: viewers spread evenly along the scene's camera loop, all walking it, as
 //!   players spread over a level would be ([`crate::scene::CameraPath::viewers`]);
@@ -14,8 +14,9 @@
 //!
 //! Per point it records the median and range of each stage's GPU time and of the whole
 //! frame, shadow rays per stage, grid voxels updated, memory, and the mean FLIP of every
-//! other configuration against `reference` on the same frames; [`report`] writes JSON,
-//! CSV, markdown and plots.
+//! other configuration against `reference` on the same frames, and (on one image, so that
+//! the CPU renderer stays quick) every configuration's FLIP against `truth`; [`report`]
+//! writes JSON, CSV, markdown and plots.
 
 mod cli;
 pub mod report;
@@ -28,6 +29,7 @@ use crate::gpu::GpuContext;
 use crate::metrics::compare;
 use crate::render::{FrameOutput, Mode, RayCounts, Renderer, Stage};
 use crate::scene::{Bvh, Camera, Scene};
+use crate::truth::{render_truth, TruthSettings};
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -73,6 +75,10 @@ pub struct BenchConfig {
     pub overlaps_pct: Vec<f32>,
     /// Viewer counts of the fixed-overlap scenario.
     pub overlap_viewers: Vec<usize>,
+    /// Measure every configuration's error against `truth` (src/truth/, on the CPU) on
+    /// one image: the first viewer of the first measured frame of the path scenario's
+    /// fewest viewers.
+    pub truth: bool,
     /// Output folder.
     pub out: PathBuf,
     /// The command line, recorded in the report.
@@ -233,6 +239,10 @@ pub struct BenchPoint {
     /// Against `reference` on the same frames (none for `reference` itself, or when
     /// `reference` is not run).
     pub flip_vs_reference: Option<FlipSummary>,
+    /// Mean FLIP against `truth` on the one image [`BenchReport::truth_frames`] names
+    /// (only at that point).
+    #[serde(default)]
+    pub flip_vs_truth: Option<f64>,
 }
 
 /// A finished benchmark: what ran, where, and every point.
@@ -263,6 +273,10 @@ pub struct BenchReport {
     pub timestamps: bool,
     /// Which frames FLIP is measured on.
     pub flip_frames: String,
+    /// Which image the error against `truth` is measured on, and what truth cost (none:
+    /// not measured).
+    #[serde(default)]
+    pub truth_frames: Option<String>,
     /// The configurations, in the order they were run.
     pub configs: Vec<BenchVariant>,
     /// Every point, the path scenario first.
@@ -295,6 +309,7 @@ struct Samples {
     voxels: Vec<u64>,
     flip: Vec<f64>,
     vs_reference: Vec<f64>,
+    truth_flip: Option<f64>,
     last: Option<FrameOutput>,
 }
 
@@ -371,6 +386,7 @@ impl Samples {
                 max: self.flip.iter().copied().fold(0.0, f64::max),
                 images: self.flip.len(),
             }),
+            flip_vs_truth: self.truth_flip,
         }
     }
 }
@@ -468,6 +484,14 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let reference = cfg.configs.iter().position(|v| v.name == "reference");
+    // The one image every configuration is compared with `truth` on.
+    let truth_point = cfg
+        .viewers
+        .iter()
+        .min()
+        .filter(|_| cfg.truth)
+        .map(|&n| (Scenario::Path, n));
+    let mut truth_frames = None;
 
     let mut plan: Vec<(Scenario, usize)> =
         cfg.viewers.iter().map(|&n| (Scenario::Path, n)).collect();
@@ -520,6 +544,35 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             if k < cfg.warmup as usize {
                 continue;
             }
+            if k == cfg.warmup as usize && truth_point == Some((scenario, n)) {
+                progress(&Progress {
+                    done,
+                    total,
+                    label: "truth (CPU), one image".into(),
+                });
+                let started = std::time::Instant::now();
+                let (truth, _) = render_truth(
+                    &scene,
+                    &bvh,
+                    &cams[..1],
+                    (cfg.width, cfg.height),
+                    t,
+                    TruthSettings::default(),
+                    &|_, _| {},
+                );
+                for (s, o) in samples.iter_mut().zip(&outputs) {
+                    let o = o.as_ref().expect("rendered above");
+                    s.truth_flip =
+                        Some(compare(&truth[0], &o.images[0], cfg.width, cfg.height)?.flip_mean);
+                }
+                truth_frames = Some(format!(
+                    "one image: viewer 1 of the path scenario's {n}-viewer point, its first \
+                     measured frame (scene time {t:.3} s), against `truth` at its defaults \
+                     ({} segments, 1 ray per pixel; {:.1} s on the CPU)",
+                    TruthSettings::default().steps,
+                    started.elapsed().as_secs_f64()
+                ));
+            }
             if let Some(r) = reference {
                 let ref_out = outputs[r].as_ref().expect("rendered above");
                 for (i, o) in outputs.iter().enumerate() {
@@ -561,6 +614,7 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         frame_dt_s: FRAME_DT_S,
         timestamps: ctx.has_timestamps,
         flip_frames: "every measured frame (warm-up frames excluded), every viewer".into(),
+        truth_frames,
         configs: cfg.configs.clone(),
         points,
         command: cfg.command.clone(),

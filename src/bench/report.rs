@@ -17,6 +17,8 @@ pub const MAX_TIME_RATIO: f64 = 0.6;
 pub const MAX_RAY_GROWTH: f64 = 6.0;
 /// See [`MAX_TIME_RATIO`].
 pub const MAX_FLIP: f64 = 0.05;
+/// Issue 14's bound on `shared`'s frame time against `maps`' at the most viewers.
+pub const MAX_TIME_VS_MAPS: f64 = 0.8;
 
 /// One of issue 5's acceptance checks, evaluated on a report.
 #[derive(Debug, Clone, PartialEq)]
@@ -125,11 +127,12 @@ fn tag(r: &BenchReport, config: &str) -> String {
     match config {
         "reference" => "R".into(),
         "shared" => "S".into(),
+        "maps" => "M".into(),
         _ => {
             let i = r
                 .configs
                 .iter()
-                .filter(|c| c.name != "reference" && c.name != "shared")
+                .filter(|c| !["reference", "shared", "maps"].contains(&c.name.as_str()))
                 .position(|c| c.name == config)
                 .unwrap_or(0);
             format!("V{}", i + 1)
@@ -215,7 +218,47 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
             });
         }
     }
+    // Issue 14: `shared` against the engines' way, `maps`.
+    if let (Some(s), Some(m)) = (
+        point(r, Scenario::Path, "shared", hi),
+        point(r, Scenario::Path, "maps", hi),
+    ) {
+        out.push(Check {
+            what: format!("shared: frame GPU ms at {hi} viewers / maps' (ratio of the medians)"),
+            value: ratio(s.frame_gpu_ms.median, m.frame_gpu_ms.median),
+            bound: Some(MAX_TIME_VS_MAPS),
+        });
+    }
+    let truth_of = |c: &str| {
+        r.points
+            .iter()
+            .find(|p| p.config == c && p.flip_vs_truth.is_some())
+            .and_then(|p| p.flip_vs_truth)
+    };
+    if let (Some(s), Some(m)) = (truth_of("shared"), truth_of("maps")) {
+        out.push(Check {
+            what: "shared: FLIP vs truth − maps' FLIP vs truth (the one truth image)".into(),
+            value: s - m,
+            bound: Some(0.0),
+        });
+    }
     out
+}
+
+/// Every configuration's FLIP against `truth` on the one image it was measured on.
+fn truth_table(r: &BenchReport) -> Option<Table> {
+    let mut t = Table::new(&["configuration", "mean FLIP vs truth"]);
+    for c in &r.configs {
+        let p = r
+            .points
+            .iter()
+            .find(|p| p.config == c.name && p.flip_vs_truth.is_some())?;
+        t.push(vec![
+            c.name.clone(),
+            format!("{:.4}", p.flip_vs_truth.unwrap_or(f64::NAN)),
+        ]);
+    }
+    Some(t)
 }
 
 /// `p`'s frame GPU time relative to `reference`'s point `q`: the median of the per-frame
@@ -274,6 +317,7 @@ fn csv(r: &BenchReport) -> Table {
             "memory_total_bytes",
             "flip_mean",
             "flip_max",
+            "flip_vs_truth",
         ]
         .iter()
         .map(|s| s.to_string()),
@@ -320,6 +364,7 @@ fn csv(r: &BenchReport) -> Table {
                 .map_or(String::new(), |f| format!("{:.5}", f.mean)),
             p.flip_vs_reference
                 .map_or(String::new(), |f| format!("{:.5}", f.max)),
+            p.flip_vs_truth.map_or(String::new(), |f| format!("{f:.5}")),
         ]);
         t.push(row);
     }
@@ -605,6 +650,12 @@ fn markdown(r: &BenchReport) -> String {
             flip.to_markdown(),
             fog_stages = super::fog_stage_list(),
         );
+        if let (Some(t), Some(what)) = (truth_table(r), &r.truth_frames) {
+            md += &format!(
+                "\n## Mean FLIP against truth (the CPU renderer)\n\nOn {what}.\n\n{}",
+                t.to_markdown()
+            );
+        }
         let checks = checks(r);
         if !checks.is_empty() {
             let mut t = Table::new(&["check", "measured", "bound", "result"]);
@@ -620,7 +671,10 @@ fn markdown(r: &BenchReport) -> String {
                     },
                 ]);
             }
-            md += &format!("\n## Issue 5 acceptance checks\n\n{}", t.to_markdown());
+            md += &format!(
+                "\n## Acceptance checks (issues 5 and 14)\n\n{}",
+                t.to_markdown()
+            );
         }
     }
     md + &overlap_tables(r)

@@ -12,6 +12,8 @@ pub(crate) const FLAG_CACHE: u32 = 64;
 pub(crate) const FLAG_SPARSE: u32 = 128;
 pub(crate) const FLAG_CULL: u32 = 256;
 pub(crate) const FLAG_MEDIA_T: u32 = 512;
+/// Mode `maps`: every froxel reads the shared shadow maps.
+pub(crate) const FLAG_MAPS: u32 = 2048;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 9;

@@ -24,6 +24,8 @@ pub enum Lookup {
     GridNearest,
     /// The shared grid's 8 neighbouring voxels, trilinearly (paper 000 §3.1.3).
     GridTrilinear,
+    /// The shared shadow maps, every froxel (`maps`).
+    Maps,
 }
 
 impl Lookup {
@@ -33,6 +35,7 @@ impl Lookup {
             (Mode::Reference, _) => Lookup::Rays,
             (Mode::Shared, false) => Lookup::GridNearest,
             (Mode::Shared, true) => Lookup::GridTrilinear,
+            (Mode::Maps, _) => Lookup::Maps,
         }
     }
 
@@ -41,6 +44,7 @@ impl Lookup {
             Lookup::Rays => 0,
             Lookup::GridNearest => FLAG_SHARED,
             Lookup::GridTrilinear => FLAG_SHARED | FLAG_TRILINEAR,
+            Lookup::Maps => FLAG_MAPS,
         }
     }
 }
@@ -73,9 +77,11 @@ impl World {
     ) -> anyhow::Result<World> {
         settings.validate()?;
         let shared = settings.mode == Mode::Shared;
+        // `maps` shares the maps and the transmittance volumes, not the grid.
+        let light_space = settings.shares_light_space();
         let light_media = media_transmittance::plan(
             &scene,
-            if shared {
+            if light_space {
                 settings.transmittance_voxel_m
             } else {
                 0.0
@@ -96,7 +102,11 @@ impl World {
             shadow_maps: ShadowMaps::new(
                 &ctx,
                 &scene,
-                if shared { settings.shadow_map_px } else { 0 },
+                if light_space {
+                    settings.shadow_map_px
+                } else {
+                    0
+                },
             ),
             transmittance: MediaTransmittance::new(&ctx, &gpu.layout, &scene, &light_media),
             triangles: bvh.triangle_count()
