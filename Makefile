@@ -30,7 +30,8 @@ render: deps-runtime build
 	./target/release/fogcast render --scene $(SCENE) --viewers 4 --width 640 --height 360 --out out/$(SCENE)
 
 # The default scaling sweep of docs/performance.md: 1-16 viewers along each scene's camera
-# path, reference vs shared on the same frames, at 320x180 per viewer; colonnade also with
+# path, reference vs shared vs maps (the engines' shadow-map froxels) on the same frames,
+# each also against the CPU truth on one image, at 320x180 per viewer; colonnade also with
 # 0.5 m and 0.125 m grids and the fixed-overlap scenario (paper Figure 12). Reports and
 # plots go to out/bench/<scene>/. About 12 minutes on 2 cores with lavapipe. The dev
 # profile (opt-level 2, the one `make test` builds) is enough: the GPU work runs in Mesa.

@@ -76,9 +76,10 @@ pub struct BenchConfig {
     /// Viewer counts of the fixed-overlap scenario.
     pub overlap_viewers: Vec<usize>,
     /// Measure every configuration's error against `truth` (src/truth/, on the CPU) on
-    /// one image: the first viewer of the first measured frame of the path scenario's
-    /// fewest viewers.
-    pub truth: bool,
+    /// one image, the path's first viewer at `time_s`, of `width / truth` ×
+    /// `height / truth` pixels (0: not at all). At full size `truth` takes 15 minutes on
+    /// street (six lights in windy fog) on 2 cores.
+    pub truth: u32,
     /// Output folder.
     pub out: PathBuf,
     /// The command line, recorded in the report.
@@ -239,10 +240,6 @@ pub struct BenchPoint {
     /// Against `reference` on the same frames (none for `reference` itself, or when
     /// `reference` is not run).
     pub flip_vs_reference: Option<FlipSummary>,
-    /// Mean FLIP against `truth` on the one image [`BenchReport::truth_frames`] names
-    /// (only at that point).
-    #[serde(default)]
-    pub flip_vs_truth: Option<f64>,
 }
 
 /// A finished benchmark: what ran, where, and every point.
@@ -273,10 +270,9 @@ pub struct BenchReport {
     pub timestamps: bool,
     /// Which frames FLIP is measured on.
     pub flip_frames: String,
-    /// Which image the error against `truth` is measured on, and what truth cost (none:
-    /// not measured).
+    /// Every configuration against `truth` on one image (none: not measured).
     #[serde(default)]
-    pub truth_frames: Option<String>,
+    pub truth: Option<TruthComparison>,
     /// The configurations, in the order they were run.
     pub configs: Vec<BenchVariant>,
     /// Every point, the path scenario first.
@@ -309,7 +305,6 @@ struct Samples {
     voxels: Vec<u64>,
     flip: Vec<f64>,
     vs_reference: Vec<f64>,
-    truth_flip: Option<f64>,
     last: Option<FrameOutput>,
 }
 
@@ -386,9 +381,63 @@ impl Samples {
                 max: self.flip.iter().copied().fold(0.0, f64::max),
                 images: self.flip.len(),
             }),
-            flip_vs_truth: self.truth_flip,
         }
     }
+}
+
+/// Every configuration's error against `truth` on one image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TruthComparison {
+    /// Image width, pixels (the bench's divided by `--truth`).
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Scene time, seconds (the path's first viewer).
+    pub time_s: f32,
+    /// Ray-march segments of `truth`.
+    pub steps: u32,
+    /// CPU seconds `truth` took.
+    pub truth_s: f64,
+    /// Per configuration, in run order: (name, mean FLIP against `truth`) of its second
+    /// frame at that time (the first warms caches at the new size).
+    pub flip: Vec<(String, f64)>,
+}
+
+/// Renders the path's first viewer at `cfg.time_s` with `truth` and with every
+/// configuration, at the bench's size divided by `cfg.truth`; runs after every point,
+/// so the new view size disturbs no measurement.
+fn against_truth(
+    cfg: &BenchConfig,
+    scene: &Arc<Scene>,
+    bvh: &Bvh,
+    renderers: &mut [Renderer],
+) -> anyhow::Result<TruthComparison> {
+    let (w, h) = (
+        (cfg.width / cfg.truth).max(8),
+        (cfg.height / cfg.truth).max(8),
+    );
+    let cams = Scenario::Path.cameras(scene, 1, cfg.time_s, w as f32 / h as f32);
+    let settings = TruthSettings::default();
+    let started = std::time::Instant::now();
+    let (truth, _) = render_truth(scene, bvh, &cams, (w, h), cfg.time_s, settings, &|_, _| {});
+    let truth_s = started.elapsed().as_secs_f64();
+    let mut flip = Vec::new();
+    for (r, v) in renderers.iter_mut().zip(&cfg.configs) {
+        r.render(&cams, w, h, cfg.time_s)?;
+        let out = r.render(&cams, w, h, cfg.time_s)?;
+        flip.push((
+            v.name.clone(),
+            compare(&truth[0], &out.images[0], w, h)?.flip_mean,
+        ));
+    }
+    Ok(TruthComparison {
+        width: w,
+        height: h,
+        time_s: cfg.time_s,
+        steps: settings.steps,
+        truth_s,
+        flip,
+    })
 }
 
 /// A frame's GPU time: the sum of its stages.
@@ -484,14 +533,6 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let reference = cfg.configs.iter().position(|v| v.name == "reference");
-    // The one image every configuration is compared with `truth` on.
-    let truth_point = cfg
-        .viewers
-        .iter()
-        .min()
-        .filter(|_| cfg.truth)
-        .map(|&n| (Scenario::Path, n));
-    let mut truth_frames = None;
 
     let mut plan: Vec<(Scenario, usize)> =
         cfg.viewers.iter().map(|&n| (Scenario::Path, n)).collect();
@@ -544,35 +585,6 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             if k < cfg.warmup as usize {
                 continue;
             }
-            if k == cfg.warmup as usize && truth_point == Some((scenario, n)) {
-                progress(&Progress {
-                    done,
-                    total,
-                    label: "truth (CPU), one image".into(),
-                });
-                let started = std::time::Instant::now();
-                let (truth, _) = render_truth(
-                    &scene,
-                    &bvh,
-                    &cams[..1],
-                    (cfg.width, cfg.height),
-                    t,
-                    TruthSettings::default(),
-                    &|_, _| {},
-                );
-                for (s, o) in samples.iter_mut().zip(&outputs) {
-                    let o = o.as_ref().expect("rendered above");
-                    s.truth_flip =
-                        Some(compare(&truth[0], &o.images[0], cfg.width, cfg.height)?.flip_mean);
-                }
-                truth_frames = Some(format!(
-                    "one image: viewer 1 of the path scenario's {n}-viewer point, its first \
-                     measured frame (scene time {t:.3} s), against `truth` at its defaults \
-                     ({} segments, 1 ray per pixel; {:.1} s on the CPU)",
-                    TruthSettings::default().steps,
-                    started.elapsed().as_secs_f64()
-                ));
-            }
             if let Some(r) = reference {
                 let ref_out = outputs[r].as_ref().expect("rendered above");
                 for (i, o) in outputs.iter().enumerate() {
@@ -594,6 +606,16 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             points.push(s.point(scenario, n, v));
         }
     }
+    let truth = if cfg.truth > 0 {
+        progress(&Progress {
+            done,
+            total,
+            label: "truth (CPU), one image".into(),
+        });
+        Some(against_truth(cfg, &scene, &bvh, &mut renderers)?)
+    } else {
+        None
+    };
     progress(&Progress {
         done,
         total,
@@ -614,7 +636,7 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         frame_dt_s: FRAME_DT_S,
         timestamps: ctx.has_timestamps,
         flip_frames: "every measured frame (warm-up frames excluded), every viewer".into(),
-        truth_frames,
+        truth,
         configs: cfg.configs.clone(),
         points,
         command: cfg.command.clone(),
