@@ -118,7 +118,19 @@ fn face_axes(f: usize) -> (Vec3, Vec3) {
 /// Perspective view-projection from `eye` along `forward` with a square field of
 /// `fov_rad`, depth [0, 1] from `LOCAL_NEAR_M` to `far`.
 fn perspective_view_proj(eye: Vec3, forward: Vec3, up: Vec3, fov_rad: f32, far: f32) -> Mat4 {
-    let (near, far) = (LOCAL_NEAR_M, far.max(LOCAL_NEAR_M * 2.0));
+    perspective_view_proj_near(eye, forward, up, fov_rad, LOCAL_NEAR_M, far)
+}
+
+/// As [`perspective_view_proj`], with the near plane at `near`.
+fn perspective_view_proj_near(
+    eye: Vec3,
+    forward: Vec3,
+    up: Vec3,
+    fov_rad: f32,
+    near: f32,
+    far: f32,
+) -> Mat4 {
+    let far = far.max(near * 2.0);
     let f = forward.normalize();
     let r = f.cross(up).normalize();
     let u = r.cross(f);
@@ -373,7 +385,22 @@ impl LocalMaps {
     /// Light `l`'s maps (first layer `layer`) and their projections.
     fn maps_gpu(&self, l: &Light, layer: usize, cube: bool) -> LightMapsGpu {
         let far = far_plane(l.position, self.bounds);
-        let (view_proj, kind, fov, faces) = if cube {
+        // A point light outside the scene's bounding sphere sees all of it in one
+        // perspective map aimed at it: a cube would spend its texels on empty directions
+        // (a lamp 10 km away: 39 m texels at 512²).
+        let (lo, hi) = self.bounds;
+        let (centre, radius) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
+        let to_centre = centre - l.position;
+        let d = to_centre.length();
+        let (view_proj, kind, fov, faces) = if cube && d > 1.1 * radius {
+            let dir = to_centre / d;
+            let up = if dir.y.abs() > 0.99 { Vec3::Z } else { Vec3::Y };
+            let fov = (2.1 * (radius / d).asin()).min(170f32.to_radians());
+            let near = ((d - radius) * 0.9).max(LOCAL_NEAR_M);
+            let vp = perspective_view_proj_near(l.position, dir, up, fov, near, d + radius + 1.0)
+                .to_cols_array_2d();
+            (vp, KIND_PERSPECTIVE, fov, [vp; 6])
+        } else if cube {
             let faces = cube_view_projs(l.position, far).map(|m| m.to_cols_array_2d());
             (faces[0], KIND_CUBE, std::f32::consts::FRAC_PI_2, faces)
         } else {
@@ -693,8 +720,8 @@ impl ShadowMaps {
         for &(li, layer, cube) in &self.local.lights {
             let m = self.local.maps_gpu(&lights[li], layer, cube);
             self.info_cpu[li] = m;
-            for f in 0..if cube { 6 } else { 1 } {
-                put(2 * n + layer + f, &m.faces[f]);
+            for (f, face) in m.faces.iter().enumerate().take(if cube { 6 } else { 1 }) {
+                put(2 * n + layer + f, face);
             }
         }
         ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
@@ -725,9 +752,15 @@ impl ShadowMaps {
                 passes.push((&m.texture, layer, n + layer, m.indices.clone()));
             }
         }
-        for (&(_, layer, cube), redo) in self.local.lights.iter().zip(&redo_local) {
+        for (&(li, layer, _), redo) in self.local.lights.iter().zip(&redo_local) {
             if *redo {
-                for f in 0..if cube { 6 } else { 1 } {
+                // A point light far outside the scene has one perspective map.
+                let faces = if self.info_cpu[li].scene.kind == KIND_CUBE {
+                    6
+                } else {
+                    1
+                };
+                for f in 0..faces {
                     passes.push((
                         &self.local.texture,
                         layer + f,
