@@ -7,7 +7,9 @@
 //!   the sphere they turn in, rendered every frame they move;
 //! - per **spot** light, one perspective map covering its cone (a 10 % wider field),
 //!   near 5 cm, far plane at the scene's farthest corner;
-//! - per **point** light, a cube: six 90° perspective faces, layers of the same array.
+//! - per **point** light, a cube: six 90° perspective faces, layers of the same array
+//!   (one perspective map aimed at the scene when the light is outside its bounding
+//!   sphere).
 //!
 //! Spot and cube maps share one depth array of [`local_px`]² layers. They hold the
 //! static scene *and* the movers (no separate movers map: a documented simplification)
