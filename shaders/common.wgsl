@@ -62,6 +62,7 @@ const FLAG_SPARSE: u32 = 128u;   // grid: bricks allocated where froxels read (s
 const FLAG_CULL: u32 = 256u;     // demand: froxels behind the depth buffer are not lit (froxel_cull.wgsl)
 const FLAG_MEDIA_T: u32 = 512u;  // transmittance toward lights from the shared volumes (else marched)
 const FLAG_LAYER: u32 = 1024u;   // media marked `in_layer` are read from the world media layer
+const FLAG_MAPS: u32 = 2048u;    // mode `maps`: froxels read the shared shadow maps (no grid, no rays)
 const FLAG_LAYER_FULL: u32 = 4096u; // layer nodes hold σs, σt, emission and g (else one density)
 
 struct View {

@@ -1,6 +1,6 @@
-// Composite + tone map, all viewers in one dispatch: surface shading (directional lights
-// from the shared shadow maps when there are any, other lights by a shadow ray; every
-// light dimmed by the media between it and the surface), then
+// Composite + tone map, all viewers in one dispatch: surface shading (lights from the
+// shared shadow maps when there are any, else by a shadow ray; every light dimmed by
+// the media between it and the surface), then
 // `surface × transmittance + in-scattered` from the integrated volume at the pixel's
 // depth (000 §3.1.4), ACES-fitted tone curve, sRGB, RGBA8 out.
 
@@ -9,7 +9,7 @@
 @group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
 @group(1) @binding(3) var gbuf_normal: texture_2d_array<f32>;
 @group(1) @binding(4) var gbuf_albedo: texture_2d_array<f32>;
-// Bindings 5–8: the shadow maps (shaders/shadow_lookup.wgsl).
+// Bindings 10–14: the shadow maps (shaders/shadow_lookup.wgsl).
 
 fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
     if s < 0 {
@@ -82,10 +82,9 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
             if all(radiance == vec3f(0.0)) {
                 continue;
             }
-            let m = map_info[li];
             var vis = 0.0;
-            if m.scene.layer >= 0 {
-                vis = map_visibility(m, p, n, 0.75);
+            if has_map(li) {
+                vis = map_visibility(li, l, p, n, 0.75);
             } else {
                 *rays += 1u;
                 vis = select(0.0, 1.0, light_visible(l, origin));

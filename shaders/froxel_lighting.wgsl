@@ -1,7 +1,8 @@
 // Stage 3 (000 §3.1.3): in-scattered light and extinction per froxel, all viewers in
 // one dispatch. `reference` traces a shadow ray per light per froxel (Hillaire 2015 with
 // ray-traced shadows); `shared` reads the shadow frustum for the near slices and the
-// shared grid (nearest voxel, or trilinear over 8 voxels) beyond.
+// shared grid (nearest voxel, or trilinear over 8 voxels) beyond; `maps` reads the
+// shared shadow maps (shaders/shadow_lookup.wgsl, bindings 10–14) for every froxel.
 
 @group(1) @binding(0) var<storage, read> grid: array<u32>;
 @group(1) @binding(1) var<storage, read> frustum: array<u32>;
@@ -68,9 +69,25 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
         return vec4f(0.0);
     }
     var vis: array<f32, 8>;
-    var trace = (frame.flags & FLAG_SHARED) == 0u;
+    var trace = (frame.flags & (FLAG_SHARED | FLAG_MAPS)) == 0u;
     if trace {
         // reference: traced below
+    } else if (frame.flags & FLAG_MAPS) != 0u {
+        // maps: every froxel reads the shared shadow maps (2×2 PCF, one texel towards
+        // the light); a light without a map traces.
+        for (var li = 0u; li < frame.light_count; li++) {
+            let l = lights[li];
+            vis[li] = 0.0;
+            if all(light_radiance(l, p) == vec3f(0.0)) {
+                continue;
+            }
+            if has_map(li) {
+                vis[li] = map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
+            } else {
+                *rays += 1u;
+                vis[li] = select(0.0, 1.0, light_visible(l, p));
+            }
+        }
     } else if slice < frame.frustum_slices {
         let fx = min(xy.x * v.froxel_px / v.frustum_px, v.frustum_dims.x - 1u);
         let fy = min(xy.y * v.froxel_px / v.frustum_px, v.frustum_dims.y - 1u);

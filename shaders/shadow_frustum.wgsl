@@ -1,9 +1,10 @@
 // Stage 2 (000 §3.1.2): per-viewer shadow frustums, all viewers in one dispatch.
 // Froxels of `frustum_px` pixels over the first `frustum_slices` depth slices (which
 // share their depth boundaries with the lighting volume); one light bitmask each.
-// A directional light with a shared shadow map (shaders/shadow_lookup.wgsl) is looked
-// up in it instead of traced: the map's texels (Sponza 1.8 cm at 4096²) resolve the
-// near field as finely as the rays do, and it was rendered once for every viewer.
+// A light with a shared shadow map (shaders/shadow_lookup.wgsl: orthographic for the
+// sun, perspective for spots, a cube for point lights) is looked up in it instead of
+// traced: the map's texels (Sponza 1.8 cm at 4096²) resolve the near field as finely as
+// the rays do, and it was rendered once for every viewer.
 
 @group(1) @binding(0) var<storage, read_write> frustum: array<u32>;
 
@@ -25,11 +26,10 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
                     if all(light_radiance(l, p) == vec3f(0.0)) {
                         continue;
                     }
-                    let m = map_info[li];
                     var visible: bool;
-                    if m.scene.layer >= 0 {
+                    if has_map(li) {
                         // One texel towards the light clears the map's depth steps.
-                        visible = map_lit(m, p, to_light(l, p).xyz, 1.0);
+                        visible = map_lit(li, l, p, to_light(l, p).xyz, 1.0);
                     } else {
                         rays += 1u;
                         visible = light_visible(l, p);

@@ -1,6 +1,6 @@
-//! `fogcast eval`: `truth`, `reference` and a sweep of `shared` settings on the same
-//! frames; a table of time, rays and error, and speed-vs-error plots with the Pareto
-//! front. Errors are measured against `truth` and, as paper 000 reports them, against
+//! `fogcast eval`: `truth`, `reference`, a sweep of `shared` settings and `maps` (the
+//! engines' shadow-map froxels) on the same frames; a table of time, rays and error, and
+//! speed-vs-error plots with the Pareto front. Errors are measured against `truth` and, as paper 000 reports them, against
 //! `reference`.
 
 use crate::gpu::GpuContext;
@@ -274,6 +274,13 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
             ..base
         });
     }
+    // The engines' way (`maps`): every froxel lit from the shared shadow maps and
+    // transmittance volumes, no grid.
+    variants.push(Settings {
+        mode: Mode::Maps,
+        shadow_map_px: maps,
+        ..base
+    });
     // The media transmittance toward the lights at other node spacings, or marched per
     // froxel and pixel (0), on top of `shared`'s defaults.
     for &transmittance_voxel_m in &cfg.transmittance_voxels_m {
@@ -341,6 +348,9 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
             && settings.frustum_slice_fraction > 0.0
         {
             crate::output::write_png(&cfg.out.join("shared_00.png"), &out.images[0], w, h)?;
+        }
+        if settings.mode == Mode::Maps {
+            crate::output::write_png(&cfg.out.join("maps_00.png"), &out.images[0], w, h)?;
         }
         rows.push(EvalRow {
             variant: name,

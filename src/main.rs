@@ -83,7 +83,8 @@ struct EvalArgs {
 /// setting of `Settings`.
 #[derive(Args, Clone)]
 struct SettingsArgs {
-    /// Rendering mode: the paper's baseline, the paper's method, or the CPU ground truth.
+    /// Rendering mode: the paper's baseline, the paper's method, the engines' shadow-map
+    /// froxels (`maps`), or the CPU ground truth.
     #[arg(long, value_enum, default_value_t = Settings::default().mode.into())]
     mode: ModeArg,
     /// Ray-march segments per pixel of mode `truth`.
@@ -100,6 +101,7 @@ struct SettingsArgs {
 enum ModeArg {
     Reference,
     Shared,
+    Maps,
     Truth,
 }
 
@@ -108,6 +110,7 @@ impl From<Mode> for ModeArg {
         match mode {
             Mode::Reference => ModeArg::Reference,
             Mode::Shared => ModeArg::Shared,
+            Mode::Maps => ModeArg::Maps,
         }
     }
 }
@@ -118,6 +121,7 @@ impl ModeArg {
         match self {
             ModeArg::Reference => Some(Mode::Reference),
             ModeArg::Shared => Some(Mode::Shared),
+            ModeArg::Maps => Some(Mode::Maps),
             ModeArg::Truth => None,
         }
     }

@@ -1,8 +1,9 @@
-//! `fogcast bench` at a small size on `colonnade`: 1 and 4 viewers, `reference` and
-//! `shared`, through the library. Checks that `bench.json` has every field with finite
-//! values, and the ray counts issue 5 is about — deterministic numbers, so no timing is
-//! asserted: `reference` rays grow about linearly, `shared` rays sub-linearly, and
-//! `shared` traces fewer than `reference` at 4 viewers.
+//! `fogcast bench` at a small size on `colonnade`: 1 and 4 viewers, `reference`, `shared`
+//! and `maps`, through the library. Checks that `bench.json` has every field with finite
+//! values (every configuration's FLIP against `truth` on one image), and the ray counts
+//! issue 5 is about — deterministic numbers, so no timing is asserted: `reference` rays
+//! grow about linearly, `shared` rays sub-linearly, `shared` traces fewer than
+//! `reference` at 4 viewers, and `maps` traces none.
 
 use fogcast::bench::{configurations, run, BenchConfig};
 use fogcast::render::Mode;
@@ -49,7 +50,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         viewers: vec![1, 4],
         // `shared` with its defaults, and the paper's method as published.
         configs: configurations(
-            &[Mode::Reference, Mode::Shared],
+            &[Mode::Reference, Mode::Shared, Mode::Maps],
             &["paper:demand=off,cache=off,shadow_map_px=0".to_string()],
             VOXEL_SIZE_M,
         )
@@ -61,6 +62,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         time_s: 0.0,
         overlaps_pct: vec![50.0],
         overlap_viewers: vec![2],
+        truth: 2,
         out: out.clone(),
         command: "tests/bench.rs".into(),
     };
@@ -72,7 +74,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     .expect("bench runs");
     assert_eq!(
         progressed.into_inner(),
-        3 * 3 * (1 + 4 + 2),
+        4 * 3 * (1 + 4 + 2),
         "progress reaches every viewer-frame"
     );
     for file in [
@@ -98,8 +100,8 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     let points = json["points"].as_array().expect("points");
     assert_eq!(
         points.len(),
-        3 * 3,
-        "(1, 4 viewers + 2 overlapping) × 3 configurations"
+        3 * 4,
+        "(1, 4 viewers + 2 overlapping) × 4 configurations"
     );
     let find = |scenario: &str, config: &str, viewers: u64| -> &Value {
         points
@@ -113,6 +115,8 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     };
     for p in points {
         let shared = p["mode"] == "shared";
+        let maps = p["mode"] == "maps";
+
         for key in [
             "viewers",
             "frames",
@@ -169,6 +173,16 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
                 viewers * 2.0,
                 "every viewer of every measured frame"
             );
+        } else if maps {
+            // No grid, no frustum, no rays; the same picture as reference.
+            assert!(!names.contains(&"shared_grid") && !names.contains(&"shadow_frustum"));
+            assert_eq!(p["grid_dims"][0].as_u64(), Some(0), "{p}");
+            assert_eq!(number(p, "rays.total"), 0.0, "{p}");
+            let flip = number(p, "flip_vs_reference.mean");
+            assert!(
+                flip > 0.0 && flip <= 0.05,
+                "maps vs reference mean FLIP {flip}"
+            );
         } else {
             assert!(!names.contains(&"shared_grid"));
             assert!(p["flip_vs_reference"].is_null());
@@ -177,6 +191,19 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         }
     }
 
+    // Every configuration against truth on one 80×45 image.
+    let truth = &json["truth"];
+    assert_eq!(
+        (number(truth, "width"), number(truth, "height")),
+        (80.0, 45.0)
+    );
+    let flips = truth["flip"].as_array().expect("truth.flip");
+    assert_eq!(flips.len(), 4);
+    for f in flips {
+        let v = f[1].as_f64().expect("a FLIP");
+        println!("{} vs truth: FLIP {v:.4}", f[0]);
+        assert!(v > 0.0 && v <= 0.08, "{f}");
+    }
     let rays = |config, n| number(find("path", config, n), "rays.fog_total");
     let (r1, r4, p1, p4, s1, s4) = (
         rays("reference", 1),

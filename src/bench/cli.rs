@@ -20,7 +20,7 @@ pub struct BenchArgs {
         long,
         value_enum,
         value_delimiter = ',',
-        default_value = "reference,shared"
+        default_value = "reference,shared,maps"
     )]
     pub modes: Vec<Mode>,
     /// A further `shared` configuration, `name:key=value,…` over its defaults, keyed as
@@ -49,6 +49,13 @@ pub struct BenchArgs {
     /// Viewer counts of the fixed-overlap scenario.
     #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
     pub overlap_viewers: Vec<usize>,
+    /// Every configuration's mean FLIP against `truth` (the CPU renderer) on one image:
+    /// the path's first viewer at `--time`, at the viewer size divided by this (0: skip).
+    ///
+    /// `truth` costs pixels × segments × lights shadow rays through the media: at 320×180
+    /// street takes 15 minutes on 2 cores, at the default 80×45 about a minute.
+    #[arg(long, value_name = "DIVISOR", default_value_t = 4)]
+    pub truth: u32,
     /// Output folder [default: out/bench/<scene file stem>].
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -90,6 +97,7 @@ impl BenchArgs {
             time_s: self.time,
             overlaps_pct: self.overlap.clone(),
             overlap_viewers: self.overlap_viewers.clone(),
+            truth: self.truth,
             out,
             command,
         })

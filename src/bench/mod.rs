@@ -1,10 +1,10 @@
 //! `fogcast bench`: how each cost grows with the number of viewers (paper 000 §4.2,
 //! Tables 1–3, Figures 11–14).
 //!
-//! For every viewer count, every configuration (`reference`, `shared`, variants) renders
-//! the same cameras at the same scene times; the configurations take turns frame by
-//! frame (the order reversed every other frame) so that noise from other processes falls
-//! on all of them alike. Two camera scenarios:
+//! For every viewer count, every configuration (`reference`, `shared`, `maps`, variants)
+//! renders the same cameras at the same scene times; the configurations take turns frame
+//! by frame (the order reversed every other frame) so that noise from other processes
+//! falls on all of them alike. Two camera scenarios:
 //!
 //! - **path**: viewers spread evenly along the scene's camera loop, all walking it, as
 //!   players spread over a level would be ([`crate::scene::CameraPath::viewers`]);
@@ -14,8 +14,9 @@
 //!
 //! Per point it records the median and range of each stage's GPU time and of the whole
 //! frame, shadow rays per stage, grid voxels updated, memory, and the mean FLIP of every
-//! other configuration against `reference` on the same frames; [`report`] writes JSON,
-//! CSV, markdown and plots.
+//! other configuration against `reference` on the same frames, and (on one image, so that
+//! the CPU renderer stays quick) every configuration's FLIP against `truth`; [`report`]
+//! writes JSON, CSV, markdown and plots.
 
 mod cli;
 pub mod report;
@@ -28,6 +29,7 @@ use crate::gpu::GpuContext;
 use crate::metrics::compare;
 use crate::render::{FrameOutput, Mode, RayCounts, Renderer, Stage};
 use crate::scene::{Bvh, Camera, Scene};
+use crate::truth::{render_truth, TruthSettings};
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -73,6 +75,11 @@ pub struct BenchConfig {
     pub overlaps_pct: Vec<f32>,
     /// Viewer counts of the fixed-overlap scenario.
     pub overlap_viewers: Vec<usize>,
+    /// Measure every configuration's error against `truth` (src/truth/, on the CPU) on
+    /// one image, the path's first viewer at `time_s`, of `width / truth` ×
+    /// `height / truth` pixels (0: not at all). At full size `truth` takes 15 minutes on
+    /// street (six lights in windy fog) on 2 cores.
+    pub truth: u32,
     /// Output folder.
     pub out: PathBuf,
     /// The command line, recorded in the report.
@@ -263,6 +270,9 @@ pub struct BenchReport {
     pub timestamps: bool,
     /// Which frames FLIP is measured on.
     pub flip_frames: String,
+    /// Every configuration against `truth` on one image (none: not measured).
+    #[serde(default)]
+    pub truth: Option<TruthComparison>,
     /// The configurations, in the order they were run.
     pub configs: Vec<BenchVariant>,
     /// Every point, the path scenario first.
@@ -373,6 +383,61 @@ impl Samples {
             }),
         }
     }
+}
+
+/// Every configuration's error against `truth` on one image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TruthComparison {
+    /// Image width, pixels (the bench's divided by `--truth`).
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Scene time, seconds (the path's first viewer).
+    pub time_s: f32,
+    /// Ray-march segments of `truth`.
+    pub steps: u32,
+    /// CPU seconds `truth` took.
+    pub truth_s: f64,
+    /// Per configuration, in run order: (name, mean FLIP against `truth`) of its second
+    /// frame at that time (the first warms caches at the new size).
+    pub flip: Vec<(String, f64)>,
+}
+
+/// Renders the path's first viewer at `cfg.time_s` with `truth` and with every
+/// configuration, at the bench's size divided by `cfg.truth`; runs after every point,
+/// so the new view size disturbs no measurement.
+fn against_truth(
+    cfg: &BenchConfig,
+    scene: &Arc<Scene>,
+    bvh: &Bvh,
+    renderers: &mut [Renderer],
+) -> anyhow::Result<TruthComparison> {
+    let (w, h) = (
+        (cfg.width / cfg.truth).max(8),
+        (cfg.height / cfg.truth).max(8),
+    );
+    let cams = Scenario::Path.cameras(scene, 1, cfg.time_s, w as f32 / h as f32);
+    let settings = TruthSettings::default();
+    let started = std::time::Instant::now();
+    let (truth, _) = render_truth(scene, bvh, &cams, (w, h), cfg.time_s, settings, &|_, _| {});
+    let truth_s = started.elapsed().as_secs_f64();
+    let mut flip = Vec::new();
+    for (r, v) in renderers.iter_mut().zip(&cfg.configs) {
+        r.render(&cams, w, h, cfg.time_s)?;
+        let out = r.render(&cams, w, h, cfg.time_s)?;
+        flip.push((
+            v.name.clone(),
+            compare(&truth[0], &out.images[0], w, h)?.flip_mean,
+        ));
+    }
+    Ok(TruthComparison {
+        width: w,
+        height: h,
+        time_s: cfg.time_s,
+        steps: settings.steps,
+        truth_s,
+        flip,
+    })
 }
 
 /// A frame's GPU time: the sum of its stages.
@@ -541,6 +606,16 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             points.push(s.point(scenario, n, v));
         }
     }
+    let truth = if cfg.truth > 0 {
+        progress(&Progress {
+            done,
+            total,
+            label: "truth (CPU), one image".into(),
+        });
+        Some(against_truth(cfg, &scene, &bvh, &mut renderers)?)
+    } else {
+        None
+    };
     progress(&Progress {
         done,
         total,
@@ -561,6 +636,7 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         frame_dt_s: FRAME_DT_S,
         timestamps: ctx.has_timestamps,
         flip_frames: "every measured frame (warm-up frames excluded), every viewer".into(),
+        truth,
         configs: cfg.configs.clone(),
         points,
         command: cfg.command.clone(),

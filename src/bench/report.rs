@@ -17,6 +17,8 @@ pub const MAX_TIME_RATIO: f64 = 0.6;
 pub const MAX_RAY_GROWTH: f64 = 6.0;
 /// See [`MAX_TIME_RATIO`].
 pub const MAX_FLIP: f64 = 0.05;
+/// Issue 14's bound on `shared`'s frame time against `maps`' at the most viewers.
+pub const MAX_TIME_VS_MAPS: f64 = 0.8;
 
 /// One of issue 5's acceptance checks, evaluated on a report.
 #[derive(Debug, Clone, PartialEq)]
@@ -125,11 +127,12 @@ fn tag(r: &BenchReport, config: &str) -> String {
     match config {
         "reference" => "R".into(),
         "shared" => "S".into(),
+        "maps" => "M".into(),
         _ => {
             let i = r
                 .configs
                 .iter()
-                .filter(|c| c.name != "reference" && c.name != "shared")
+                .filter(|c| !["reference", "shared", "maps"].contains(&c.name.as_str()))
                 .position(|c| c.name == config)
                 .unwrap_or(0);
             format!("V{}", i + 1)
@@ -194,11 +197,14 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
             point(r, Scenario::Path, c, lo),
             point(r, Scenario::Path, c, hi),
         ) {
-            out.push(Check {
-                what: format!("{c}: fog rays at {hi} viewers / at {lo}"),
-                value: ratio(b.rays.fog_total as f64, a.rays.fog_total as f64),
-                bound: Some(MAX_RAY_GROWTH),
-            });
+            // `maps` traces none: nothing grows.
+            if a.rays.fog_total + b.rays.fog_total > 0 {
+                out.push(Check {
+                    what: format!("{c}: fog rays at {hi} viewers / at {lo}"),
+                    value: ratio(b.rays.fog_total as f64, a.rays.fog_total as f64),
+                    bound: Some(MAX_RAY_GROWTH),
+                });
+            }
         }
         let worst = r
             .points
@@ -215,7 +221,53 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
             });
         }
     }
+    // Issue 14: `shared` against the engines' way, `maps`.
+    if let (Some(s), Some(m)) = (
+        point(r, Scenario::Path, "shared", hi),
+        point(r, Scenario::Path, "maps", hi),
+    ) {
+        out.push(Check {
+            what: format!("shared: frame GPU ms at {hi} viewers / maps' (ratio of the medians)"),
+            value: ratio(s.frame_gpu_ms.median, m.frame_gpu_ms.median),
+            bound: Some(MAX_TIME_VS_MAPS),
+        });
+    }
+    let truth_of = |c: &str| {
+        r.truth
+            .as_ref()
+            .and_then(|t| t.flip.iter().find(|(n, _)| n == c).map(|(_, f)| *f))
+    };
+    if let (Some(s), Some(m)) = (truth_of("shared"), truth_of("maps")) {
+        out.push(Check {
+            what: "shared: FLIP vs truth − maps' FLIP vs truth (the one truth image)".into(),
+            value: s - m,
+            bound: Some(0.0),
+        });
+    }
     out
+}
+
+/// Every configuration's FLIP against `truth` on the one image it was measured on.
+fn truth_section(r: &BenchReport) -> String {
+    let Some(t) = &r.truth else {
+        return String::new();
+    };
+    let mut table = Table::new(&["configuration", "mean FLIP vs truth"]);
+    for (name, flip) in &t.flip {
+        table.push(vec![name.clone(), format!("{flip:.4}")]);
+    }
+    format!(
+        "\n## Mean FLIP against truth (the CPU renderer)\n\nOne image, kept small so that \
+         the CPU renderer stays quick: the path's first viewer at scene time {time} s, \
+         {w}×{h} pixels, `truth` with {steps} segments and 1 ray per pixel ({secs:.1} s on \
+         the CPU); each configuration's second frame there.\n\n{}",
+        table.to_markdown(),
+        time = t.time_s,
+        w = t.width,
+        h = t.height,
+        steps = t.steps,
+        secs = t.truth_s,
+    )
 }
 
 /// `p`'s frame GPU time relative to `reference`'s point `q`: the median of the per-frame
@@ -605,6 +657,7 @@ fn markdown(r: &BenchReport) -> String {
             flip.to_markdown(),
             fog_stages = super::fog_stage_list(),
         );
+        md += &truth_section(r);
         let checks = checks(r);
         if !checks.is_empty() {
             let mut t = Table::new(&["check", "measured", "bound", "result"]);
@@ -620,7 +673,10 @@ fn markdown(r: &BenchReport) -> String {
                     },
                 ]);
             }
-            md += &format!("\n## Issue 5 acceptance checks\n\n{}", t.to_markdown());
+            md += &format!(
+                "\n## Acceptance checks (issues 5 and 14)\n\n{}",
+                t.to_markdown()
+            );
         }
     }
     md + &overlap_tables(r)

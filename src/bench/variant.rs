@@ -1,5 +1,5 @@
-//! Named renderer configurations of a benchmark: the modes (`reference`, `shared`) and
-//! `--variant 'name:key=value,…'` strings that change settings of `shared`.
+//! Named renderer configurations of a benchmark: the modes (`reference`, `shared`,
+//! `maps`) and `--variant 'name:key=value,…'` strings that change settings of `shared`.
 
 use crate::render::{Mode, Settings};
 use serde::{Deserialize, Serialize};
@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 /// One configuration a benchmark renders at every point.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BenchVariant {
-    /// Unique name (`reference`, `shared`, or the variant's own).
+    /// Unique name (`reference`, `shared`, `maps`, or the variant's own).
     pub name: String,
     /// Renderer settings.
     pub settings: Settings,
@@ -30,13 +30,15 @@ fn base_settings(mode: Mode, scene_voxel_size_m: f32) -> Settings {
     Settings {
         mode,
         voxel_size_m: scene_voxel_size_m,
-        // `reference` is the paper's baseline: no option of `shared` applies to it.
+        // `reference` is the paper's baseline: no option of `shared` applies to it;
+        // `maps` (the engines' way) has no grid to drive or cache, but the same shadow
+        // maps and transmittance volumes as `shared`.
         demand: shared && Settings::default().demand,
         cache: shared && Settings::default().cache,
-        shadow_map_px: if shared {
-            Settings::default().shadow_map_px
-        } else {
+        shadow_map_px: if mode == Mode::Reference {
             0
+        } else {
+            Settings::default().shadow_map_px
         },
         ..Settings::default()
     }

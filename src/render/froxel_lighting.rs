@@ -1,10 +1,12 @@
 //! Stage 3 (paper 000 §3.1.3): in-scattering and extinction per froxel, all viewers in
-//! one dispatch, with `shaders/froxel_lighting.wgsl`.
+//! one dispatch, with `shaders/froxel_lighting.wgsl` (and `shaders/shadow_lookup.wgsl`
+//! for `maps` mode).
 
 use super::gpu_types::{ViewGpu, NO_HISTORY};
+use super::shadow_maps::ShadowMaps;
 use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerId, ViewerSet, ViewerVolumes};
 use crate::gpu::Access::{Read, ReadWrite};
-use crate::gpu::GpuContext;
+use crate::gpu::{storage_entry, GpuContext};
 use glam::Mat4;
 use std::collections::HashMap;
 
@@ -89,14 +91,20 @@ pub(crate) struct FroxelLighting {
 
 impl FroxelLighting {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ctx.storage_layout(
-            "froxel lighting",
-            &[Read, Read, ReadWrite, Read, Read, Read],
-        );
+        let own = [Read, Read, ReadWrite, Read, Read, Read]
+            .iter()
+            .enumerate()
+            .map(|(i, a)| storage_entry(i as u32, *a))
+            .collect();
+        // `maps` mode reads the shared shadow maps (bindings 10–14).
+        let layout = ShadowMaps::stage_layout(ctx, "froxel lighting", own);
         let module = super::stage_shader(
             ctx,
             "froxel_lighting",
-            include_str!("../../shaders/froxel_lighting.wgsl"),
+            concat!(
+                include_str!("../../shaders/shadow_lookup.wgsl"),
+                include_str!("../../shaders/froxel_lighting.wgsl")
+            ),
         );
         FroxelLighting {
             pipeline: ctx.compute_pipeline("froxel_lighting", &module, &[scene_layout, &layout]),
@@ -104,31 +112,37 @@ impl FroxelLighting {
         }
     }
 
-    /// `grid` is `None` in `reference` mode, where every froxel traces its own rays.
+    /// `grid` is `None` in `reference` mode, where every froxel traces its own rays, and
+    /// in `maps` mode, where it reads `maps`.
     pub(crate) fn add_pass(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
         set: &ViewerSet,
         grid: Option<&SharedShadowGrid>,
+        maps: &ShadowMaps,
         ts: &Timestamps,
     ) {
         let volumes = &set.vol;
-        // In reference mode the grid binding is unused; the frustum buffer stands in.
+        // Without a grid its bindings are unused; the frustum buffer stands in.
         let grid_buffer = grid.map_or(&volumes.frustum, |g| &g.grid);
         let bricks = grid.map_or(&volumes.frustum, |g| &g.brick_table);
-        let bg = ctx.bind_buffers(
-            "froxel lighting",
-            &self.layout,
-            &[
-                grid_buffer,
-                &volumes.frustum,
-                &volumes.froxels,
-                set.history.buffer(volumes),
-                bricks,
-                &volumes.column_limit,
-            ],
-        );
+        let own = [
+            grid_buffer,
+            &volumes.frustum,
+            &volumes.froxels,
+            set.history.buffer(volumes),
+            bricks,
+            &volumes.column_limit,
+        ]
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+        let bg = maps.stage_bind_group(ctx, "froxel lighting", &self.layout, own);
         dispatch(
             enc,
             ts,

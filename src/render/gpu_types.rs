@@ -13,6 +13,8 @@ pub(crate) const FLAG_SPARSE: u32 = 128;
 pub(crate) const FLAG_CULL: u32 = 256;
 pub(crate) const FLAG_MEDIA_T: u32 = 512;
 pub(crate) const FLAG_LAYER: u32 = 1024;
+/// Mode `maps`: every froxel reads the shared shadow maps.
+pub(crate) const FLAG_MAPS: u32 = 2048;
 pub(crate) const FLAG_LAYER_FULL: u32 = 4096;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).

@@ -265,7 +265,7 @@ impl Renderer {
         }
         if world.has_media() {
             f.each_set(Stage::FroxelLighting, |e, s| {
-                stages.lighting.add_pass(&ctx, e, s, grid, ts)
+                stages.lighting.add_pass(&ctx, e, s, grid, maps, ts)
             });
             f.each_set(Stage::VolumeIntegration, |e, s| {
                 stages.integration.add_pass(&ctx, e, s, ts)

@@ -20,6 +20,11 @@ pub enum Mode {
     Reference,
     /// Paper 000's method: shared world grid + per-viewer shadow frustum.
     Shared,
+    /// What game engines (Unreal, Frostbite, Godot) do: per-viewer froxels lit from the
+    /// shared shadow maps of every light (orthographic for the sun, perspective for
+    /// spots, cubes for point lights) and the shared media transmittance volumes; no
+    /// grid, no shadow frustum, no rays. Needs `shadow_map_px` > 0.
+    Maps,
 }
 
 impl Mode {
@@ -33,6 +38,7 @@ impl Mode {
         match self {
             Mode::Reference => "reference",
             Mode::Shared => "shared",
+            Mode::Maps => "maps",
         }
     }
 }
@@ -102,7 +108,12 @@ macro_rules! settings {
 }
 
 settings! {
-    /// Rendering mode: `reference` (the paper's baseline) or `shared` (its method).
+    /// Rendering mode: `reference` (the paper's baseline), `shared` (its method) or
+    /// `maps` (the game engines' shadow-map froxels).
+    ///
+    /// `maps` lights every froxel from the shared shadow maps of `shadow_map_px` (which
+    /// it needs > 0) and the media transmittance volumes: no grid, no shadow frustum, no
+    /// shadow rays.
     mode: Mode = Mode::Shared;
 
     /// Shared grid voxel edge, metres.
@@ -167,16 +178,19 @@ settings! {
     #[serde(default)]
     brick_pool: u32 = 0, was "pool";
 
-    /// Shadows of directional lights on surfaces and in the near-field fog from one
-    /// shared shadow map of this many texels a side (`shared` only; 0: a ray per pixel
-    /// or frustum froxel and light, as `reference` always does).
+    /// Shadows on surfaces and in the near-field fog from shared shadow maps of this
+    /// many texels a side (`shared` and `maps`; 0: a ray per pixel or frustum froxel
+    /// and light, as `reference` always does).
     ///
     /// Beyond the paper: rendered once for all viewers and only when a light or mover
-    /// changed. On by default, as `fogcast bench` shows it wins.
+    /// changed. Directional lights get an orthographic map of this size; spot lights a
+    /// perspective map and point lights a cube of six faces, an eighth of it a side (at
+    /// least 64). On by default, as `fogcast bench` shows it wins. `maps` mode lights
+    /// every froxel from them and needs it > 0.
     #[serde(default)]
     shadow_map_px: u32 = 4096, was "map", "shadow_map";
 
-    /// Node spacing of the shared media transmittance volumes, metres (`shared` only; 0:
+    /// Node spacing of the shared media transmittance volumes, metres (`shared` and `maps`; 0:
     /// every froxel and pixel marches its own shadow ray through the media, as
     /// `reference` does).
     ///
@@ -531,6 +545,11 @@ impl Settings {
             self.media_voxel_m
         );
         anyhow::ensure!(
+            self.mode != Mode::Maps || self.shadow_map_px > 0,
+            "shadow_map_px=0: mode maps lights froxels from the shadow maps and needs them \
+             (64..=8192)"
+        );
+        anyhow::ensure!(
             self.transmittance_voxel_m == 0.0
                 || (self.transmittance_voxel_m.is_finite() && self.transmittance_voxel_m >= 0.01),
             "transmittance_voxel_m={}: must be 0 (march per sample) or at least 0.01 m",
@@ -549,8 +568,18 @@ impl Settings {
         Ok(())
     }
 
+    /// Depth slices of the shadow frustum (none in `maps` mode, which has no frustum).
     pub(crate) fn frustum_slices(&self) -> u32 {
+        if self.mode == Mode::Maps {
+            return 0;
+        }
         (self.slices as f32 * self.frustum_slice_fraction).ceil() as u32
+    }
+
+    /// Whether the shared shadow maps and media transmittance volumes are built (`shared`
+    /// and `maps`; `reference` traces and marches everything).
+    pub(crate) fn shares_light_space(&self) -> bool {
+        self.mode != Mode::Reference
     }
 
     /// Whether froxels hidden behind the depth buffer are culled: with the demand-driven
@@ -577,6 +606,7 @@ mod tests {
             "on",
             "reference",
             "shared",
+            "maps",
             "0",
             "0.5",
             "2",
@@ -676,7 +706,7 @@ mod tests {
             ),
             ("lookup=cubic", "lookup=cubic: expected nearest|trilinear"),
             ("trilinear=nearest", "trilinear=nearest: expected on|off"),
-            ("mode=truth", "mode=truth: expected reference|shared"),
+            ("mode=truth", "mode=truth: expected reference|shared|maps"),
             ("slices=-3", "slices=-3: expected a whole number"),
             ("voxel_size_m=inf", "voxel_size_m=inf"),
             (

@@ -1,12 +1,23 @@
-//! Shadow maps for directional lights (beyond paper 000; `shared` mode's
+//! Shared shadow maps for every light kind (beyond paper 000; `shared` and `maps` modes'
 //! `shadow_map_px`), with `shaders/shadow_map.wgsl`. Like the shared grid, this is
 //! view-independent work done once for every viewer (DESIGN.md §1's light-space stage):
-//! per directional light, an orthographic depth map of the static scene, rendered again
-//! only when the light turns, and a small map of the movers alone over the sphere they
-//! turn in, rendered every frame they move. The composite looks surface shadows up in
-//! both (2×2 PCF) instead of tracing a ray per pixel and light, and the shadow frustum
-//! the near-field fog (nearest texel) instead of a ray per frustum froxel
-//! (`shaders/shadow_lookup.wgsl`). Point and spot lights keep their rays.
+//!
+//! - per **directional** light, an orthographic depth map of the static scene (`px`²),
+//!   rendered again only when the light turns, and a small map of the movers alone over
+//!   the sphere they turn in, rendered every frame they move;
+//! - per **spot** light, one perspective map covering its cone (a 10 % wider field),
+//!   near 5 cm, far plane at the scene's farthest corner;
+//! - per **point** light, a cube: six 90° perspective faces, layers of the same array
+//!   (one perspective map aimed at the scene when the light is outside its bounding
+//!   sphere).
+//!
+//! Spot and cube maps share one depth array of [`local_px`]² layers. They hold the
+//! static scene *and* the movers (no separate movers map: a documented simplification)
+//! and are rendered again only when their light moves, or when movers move in a scene
+//! that has some. The composite looks surface shadows up in them (2×2 PCF) instead of
+//! tracing a ray per pixel and light, the shadow frustum the near-field fog (nearest
+//! texel), and `maps` mode every froxel (2×2 PCF), all through
+//! `shaders/shadow_lookup.wgsl`.
 
 use super::gbuffer::{depth_test, dynamic_uniform_layout};
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
@@ -20,46 +31,190 @@ const VIEW_STRIDE: u64 = 256;
 /// Texels a side of each light's movers map.
 const MOVER_PX: u32 = 1024;
 
-/// One orthographic map as the composite reads it.
+/// Near plane of spot and cube maps, metres.
+const LOCAL_NEAR_M: f32 = 0.05;
+
+/// `ShadowMap.kind` in shaders/shadow_lookup.wgsl.
+const KIND_ORTHO: u32 = 0;
+const KIND_PERSPECTIVE: u32 = 1;
+const KIND_CUBE: u32 = 2;
+
+/// A spot whose cone is wider than this (half angle, degrees) gets a cube, as a point
+/// light does: one perspective map would waste most of its texels near its edge.
+const SPOT_MAX_HALF_DEG: f32 = 60.0;
+
+/// Texels a side of spot and cube-face maps for `shadow_map_px`: an eighth (512 at the
+/// default 4096), at least 64. A 90° face of 512 texels is 4 cm at 10 m from the light.
+pub(crate) fn local_px(shadow_map_px: u32) -> u32 {
+    (shadow_map_px / 8).max(64)
+}
+
+/// One map as the shaders read it.
 #[repr(C)]
 #[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct MapGpu {
     view_proj: [[f32; 4]; 4],
-    /// Layer in its depth array, or −1: no map.
+    /// Layer in its depth array (a cube's first face), or −1: no map.
     layer: i32,
-    /// World size of one texel, metres (scales the lookup's normal offset).
+    /// World size of one texel, metres: for perspective and cube maps at 1 m from the
+    /// light (scales the lookup's normal offset).
     texel_m: f32,
-    _pad: [f32; 2],
+    /// `KIND_ORTHO`, `KIND_PERSPECTIVE` or `KIND_CUBE`.
+    kind: u32,
+    _pad: f32,
 }
 
-/// Per scene light: its static map and its movers map.
+/// Per scene light: its static (or spot, or cube) map, its movers map and a cube's six
+/// face projections (+x, −x, +y, −y, +z, −z: [`cube_face`]'s order).
 #[repr(C)]
 #[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct LightMapsGpu {
     scene: MapGpu,
     movers: MapGpu,
+    faces: [[[f32; 4]; 4]; 6],
 }
 
-/// A depth-array texture and the bounds its layers cover.
-struct MapSet {
+fn no_map() -> MapGpu {
+    MapGpu {
+        layer: -1,
+        ..Default::default()
+    }
+}
+
+/// The cube face a point at `d` from the light falls on: the axis of d's largest
+/// component, + before − (the shader's `cube_face` in shaders/shadow_lookup.wgsl).
+#[cfg(test)]
+fn cube_face(d: Vec3) -> usize {
+    let a = d.abs();
+    if a.x >= a.y && a.x >= a.z {
+        if d.x >= 0.0 {
+            0
+        } else {
+            1
+        }
+    } else if a.y >= a.z {
+        if d.y >= 0.0 {
+            2
+        } else {
+            3
+        }
+    } else if d.z >= 0.0 {
+        4
+    } else {
+        5
+    }
+}
+
+/// Forward and up of cube face `f` ([`cube_face`]'s order).
+fn face_axes(f: usize) -> (Vec3, Vec3) {
+    match f {
+        0 => (Vec3::X, Vec3::NEG_Y),
+        1 => (Vec3::NEG_X, Vec3::NEG_Y),
+        2 => (Vec3::Y, Vec3::Z),
+        3 => (Vec3::NEG_Y, Vec3::NEG_Z),
+        4 => (Vec3::Z, Vec3::NEG_Y),
+        _ => (Vec3::NEG_Z, Vec3::NEG_Y),
+    }
+}
+
+/// Perspective view-projection from `eye` along `forward` with a square field of
+/// `fov_rad`, depth [0, 1] from `LOCAL_NEAR_M` to `far`.
+fn perspective_view_proj(eye: Vec3, forward: Vec3, up: Vec3, fov_rad: f32, far: f32) -> Mat4 {
+    perspective_view_proj_near(eye, forward, up, fov_rad, LOCAL_NEAR_M, far)
+}
+
+/// As [`perspective_view_proj`], with the near plane at `near`.
+fn perspective_view_proj_near(
+    eye: Vec3,
+    forward: Vec3,
+    up: Vec3,
+    fov_rad: f32,
+    near: f32,
+    far: f32,
+) -> Mat4 {
+    let far = far.max(near * 2.0);
+    let f = forward.normalize();
+    let r = f.cross(up).normalize();
+    let u = r.cross(f);
+    // Right-handed view (the camera looks down −z), as `Camera::view` builds it.
+    let view = Mat4::from_cols(
+        glam::Vec4::new(r.x, u.x, -f.x, 0.0),
+        glam::Vec4::new(r.y, u.y, -f.y, 0.0),
+        glam::Vec4::new(r.z, u.z, -f.z, 0.0),
+        glam::Vec4::new(-r.dot(eye), -u.dot(eye), f.dot(eye), 1.0),
+    );
+    let s = 1.0 / (fov_rad * 0.5).tan();
+    let range = near - far;
+    let proj = Mat4::from_cols(
+        glam::Vec4::new(s, 0.0, 0.0, 0.0),
+        glam::Vec4::new(0.0, s, 0.0, 0.0),
+        glam::Vec4::new(0.0, 0.0, far / range, -1.0),
+        glam::Vec4::new(0.0, 0.0, near * far / range, 0.0),
+    );
+    proj * view
+}
+
+/// The six face projections of a cube map at `eye` reaching `far`.
+pub(crate) fn cube_view_projs(eye: Vec3, far: f32) -> [Mat4; 6] {
+    std::array::from_fn(|f| {
+        let (fwd, up) = face_axes(f);
+        perspective_view_proj(eye, fwd, up, std::f32::consts::FRAC_PI_2, far)
+    })
+}
+
+/// Whether light `l` gets a cube (point lights, wide spots) rather than one map.
+fn is_cube(l: &Light) -> bool {
+    l.kind == LightKind::Point
+        || l.cos_outer.clamp(-1.0, 1.0).acos() > SPOT_MAX_HALF_DEG.to_radians()
+}
+
+/// The field of a spot's map: its cone, 10 % wider.
+fn spot_fov(l: &Light) -> f32 {
+    (2.2 * l.cos_outer.clamp(-1.0, 1.0).acos()).min(170f32.to_radians())
+}
+
+/// Distance from `eye` to the farthest corner of the box, plus a metre.
+fn far_plane(eye: Vec3, (lo, hi): Aabb) -> f32 {
+    let far = (0..8)
+        .map(|i| {
+            let c = Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            );
+            c.distance(eye)
+        })
+        .fold(0.0f32, f32::max);
+    far + 1.0
+}
+
+/// Spot and cube maps: one depth array of [`local_px`]² layers for every point and spot
+/// light, holding the static scene and the movers.
+struct LocalMaps {
     px: u32,
     texture: wgpu::Texture,
+    /// Bounds of the scene with the movers' spheres (the far planes reach them).
     bounds: Aabb,
-    /// Index range drawn into it.
-    indices: std::ops::Range<u32>,
-    /// Light directions its layers were rendered for (`None`: never).
-    rendered_for: Option<Vec<[f32; 3]>>,
+    /// Per mapped light: (scene light, first layer, cube or not).
+    lights: Vec<(usize, usize, bool)>,
+    layers: usize,
+    /// Per mapped light: the position and direction its layers were rendered for.
+    rendered_for: Vec<Option<[f32; 6]>>,
+    /// Scene time of the movers drawn into them (scenes with movers only).
+    movers_time: Option<f32>,
+    has_movers: bool,
 }
 
-/// The maps, their pipeline and what the composite binds.
+/// The maps, their pipeline and what the stages that read them bind.
 pub(crate) struct ShadowMaps {
     scene_maps: MapSet,
     mover_maps: MapSet,
+    local: LocalMaps,
     sampler: wgpu::Sampler,
     /// One [`LightMapsGpu`] per scene light.
     info: wgpu::Buffer,
     info_cpu: Vec<LightMapsGpu>,
-    /// Scene lights with maps (directional ones), in layer order.
+    /// Scene lights with orthographic maps (directional ones), in layer order.
     lights: Vec<usize>,
     movers_time: Option<f32>,
     pipeline: Option<wgpu::RenderPipeline>,
@@ -94,6 +249,17 @@ fn light_view_proj(dir: Vec3, lo: Vec3, hi: Vec3) -> Mat4 {
         glam::Vec4::new(s.x * r.z, s.y * u.z, s.z * f.z, 0.0),
         glam::Vec4::new(-s.x * a.x - 1.0, -s.y * a.y - 1.0, -s.z * a.z, 1.0),
     )
+}
+
+/// A depth-array texture of orthographic maps and the bounds its layers cover.
+struct MapSet {
+    px: u32,
+    texture: wgpu::Texture,
+    bounds: Aabb,
+    /// Index range drawn into it.
+    indices: std::ops::Range<u32>,
+    /// Light directions its layers were rendered for (`None`: never).
+    rendered_for: Option<Vec<[f32; 3]>>,
 }
 
 /// An axis-aligned box (min, max).
@@ -179,31 +345,95 @@ impl MapSet {
 
     fn map_gpu(&self, dir: Vec3, layer: usize) -> MapGpu {
         if !self.used() {
-            return MapGpu {
-                layer: -1,
-                ..Default::default()
-            };
+            return no_map();
         }
         let (lo, hi) = self.bounds;
         MapGpu {
             view_proj: light_view_proj(dir, lo, hi).to_cols_array_2d(),
             layer: layer as i32,
             texel_m: (hi - lo).max_element() / self.px as f32,
-            _pad: [0.0; 2],
+            kind: KIND_ORTHO,
+            _pad: 0.0,
+        }
+    }
+}
+
+impl LocalMaps {
+    fn new(ctx: &GpuContext, scene: &Scene, px: u32, bounds: Option<Aabb>) -> LocalMaps {
+        let mut lights = Vec::new();
+        let mut layers = 0;
+        if px > 0 && bounds.is_some() {
+            for (i, l) in scene.lights.iter().enumerate() {
+                if l.kind != LightKind::Directional {
+                    let cube = is_cube(l);
+                    lights.push((i, layers, cube));
+                    layers += if cube { 6 } else { 1 };
+                }
+            }
+        }
+        let px = if layers > 0 { local_px(px) } else { 1 };
+        LocalMaps {
+            px,
+            texture: depth_array(ctx, "spot and cube shadow maps", px, layers),
+            bounds: bounds.unwrap_or((Vec3::ZERO, Vec3::ONE)),
+            rendered_for: vec![None; lights.len()],
+            lights,
+            layers,
+            movers_time: None,
+            has_movers: !scene.movers.is_empty(),
         }
     }
 
-    pub(crate) fn view(&self) -> wgpu::TextureView {
-        self.texture.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        })
+    /// Light `l`'s maps (first layer `layer`) and their projections.
+    fn maps_gpu(&self, l: &Light, layer: usize, cube: bool) -> LightMapsGpu {
+        let far = far_plane(l.position, self.bounds);
+        // A point light outside the scene's bounding sphere sees all of it in one
+        // perspective map aimed at it: a cube would spend its texels on empty directions
+        // (a lamp 10 km away: 39 m texels at 512²).
+        let (lo, hi) = self.bounds;
+        let (centre, radius) = ((lo + hi) * 0.5, (hi - lo).length() * 0.5);
+        let to_centre = centre - l.position;
+        let d = to_centre.length();
+        let (view_proj, kind, fov, faces) = if cube && d > 1.1 * radius {
+            let dir = to_centre / d;
+            let up = if dir.y.abs() > 0.99 { Vec3::Z } else { Vec3::Y };
+            let fov = (2.1 * (radius / d).asin()).min(170f32.to_radians());
+            let near = ((d - radius) * 0.9).max(LOCAL_NEAR_M);
+            let vp = perspective_view_proj_near(l.position, dir, up, fov, near, d + radius + 1.0)
+                .to_cols_array_2d();
+            (vp, KIND_PERSPECTIVE, fov, [vp; 6])
+        } else if cube {
+            let faces = cube_view_projs(l.position, far).map(|m| m.to_cols_array_2d());
+            (faces[0], KIND_CUBE, std::f32::consts::FRAC_PI_2, faces)
+        } else {
+            let dir = l.direction.normalize();
+            let up = if dir.y.abs() > 0.99 { Vec3::Z } else { Vec3::Y };
+            let fov = spot_fov(l);
+            let vp = perspective_view_proj(l.position, dir, up, fov, far).to_cols_array_2d();
+            (vp, KIND_PERSPECTIVE, fov, [vp; 6])
+        };
+        LightMapsGpu {
+            scene: MapGpu {
+                view_proj,
+                layer: layer as i32,
+                texel_m: 2.0 * (fov * 0.5).tan() / self.px as f32,
+                kind,
+                _pad: 0.0,
+            },
+            movers: no_map(),
+            faces,
+        }
+    }
+
+    fn bytes(&self) -> u64 {
+        self.px as u64 * self.px as u64 * 4 * self.layers as u64 * u64::from(self.layers > 0)
     }
 }
 
 impl ShadowMaps {
-    /// Maps of `px`² for the scene's directional lights (none when `px` is 0 or the scene
-    /// has no directional light: 1×1 stand-ins keep the composite's bindings valid).
+    /// Maps of `px`² for the scene's directional lights and of [`local_px`]`(px)`² for
+    /// its spot and point lights (none when `px` is 0: 1×1 stand-ins keep the stages'
+    /// bindings valid).
     pub(crate) fn new(ctx: &GpuContext, scene: &Scene, px: u32) -> Self {
         let lights: Vec<usize> = if px == 0 {
             Vec::new()
@@ -217,6 +447,11 @@ impl ShadowMaps {
                 .collect()
         };
         let (static_bounds, mover_bounds) = bounds(scene);
+        let all_bounds = match (static_bounds, mover_bounds) {
+            (Some(a), Some(b)) => union(Some(a), b.0, b.1),
+            (a, b) => a.or(b),
+        };
+        let local = LocalMaps::new(ctx, scene, px, all_bounds);
         let static_indices = scene.mesh.indices.len() as u32 * 3;
         let mover_indices = scene
             .movers
@@ -242,14 +477,9 @@ impl ShadowMaps {
         });
         let mut info_cpu = vec![
             LightMapsGpu {
-                scene: MapGpu {
-                    layer: -1,
-                    ..Default::default()
-                },
-                movers: MapGpu {
-                    layer: -1,
-                    ..Default::default()
-                },
+                scene: no_map(),
+                movers: no_map(),
+                faces: Default::default(),
             };
             scene.lights.len().max(1)
         ];
@@ -259,20 +489,26 @@ impl ShadowMaps {
             info_cpu[*li] = LightMapsGpu {
                 scene: scene_maps.map_gpu(dir, layer),
                 movers: mover_maps.map_gpu(dir, layer),
+                faces: Default::default(),
             };
         }
-        let info = ctx.storage_init("shadow map info", &info_cpu, wgpu::BufferUsages::empty());
+        for &(li, layer, cube) in &local.lights {
+            info_cpu[li] = local.maps_gpu(&lights_now[li], layer, cube);
+        }
+        let info = ctx.storage_init("shadow map info", &info_cpu, wgpu::BufferUsages::COPY_DST);
         let layout = dynamic_uniform_layout(ctx, "shadow map", wgpu::ShaderStages::VERTEX, 64);
-        let pipeline = (!lights.is_empty()).then(|| Self::pipeline(ctx, &layout));
+        let pipeline =
+            (!lights.is_empty() || local.layers > 0).then(|| Self::pipeline(ctx, &layout));
         let uniforms = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow map views"),
-            size: VIEW_STRIDE * 2 * n.max(1) as u64,
+            size: VIEW_STRIDE * (2 * n + local.layers).max(1) as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         ShadowMaps {
             scene_maps,
             mover_maps,
+            local,
             sampler,
             info,
             info_cpu,
@@ -323,7 +559,7 @@ impl ShadowMaps {
     }
 
     /// The bind-group layout of a compute stage that reads the maps: the stage's own
-    /// `entries`, then the maps' at bindings 5–8 (`shaders/shadow_lookup.wgsl`).
+    /// `entries`, then the maps' at bindings 10–14 (`shaders/shadow_lookup.wgsl`).
     pub(crate) fn stage_layout(
         ctx: &GpuContext,
         label: &str,
@@ -346,7 +582,11 @@ impl ShadowMaps {
         layout: &wgpu::BindGroupLayout,
         entries: Vec<wgpu::BindGroupEntry<'_>>,
     ) -> wgpu::BindGroup {
-        let views = (self.scene_maps.view(), self.mover_maps.view());
+        let views = [
+            array_view(&self.scene_maps.texture),
+            array_view(&self.mover_maps.texture),
+            array_view(&self.local.texture),
+        ];
         let entries: Vec<wgpu::BindGroupEntry> =
             entries.into_iter().chain(self.entries(&views)).collect();
         ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -356,8 +596,8 @@ impl ShadowMaps {
         })
     }
 
-    /// Layout entries 5–8: the maps, their sampler and their projections.
-    fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 4] {
+    /// Layout entries 10–14: the maps, their sampler and their projections.
+    fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 5] {
         let depth_array = |binding| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -369,47 +609,44 @@ impl ShadowMaps {
             count: None,
         };
         [
-            depth_array(5),
+            depth_array(10),
             wgpu::BindGroupLayoutEntry {
-                binding: 6,
+                binding: 11,
                 visibility: wgpu::ShaderStages::COMPUTE,
                 ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
                 count: None,
             },
-            storage_entry(7, Read),
-            depth_array(8),
+            storage_entry(12, Read),
+            depth_array(13),
+            depth_array(14),
         ]
     }
 
-    /// Bind-group entries 5–8 for [`Self::layout_entries`].
-    fn entries<'a>(
-        &'a self,
-        views: &'a (wgpu::TextureView, wgpu::TextureView),
-    ) -> [wgpu::BindGroupEntry<'a>; 4] {
+    /// Bind-group entries 10–14 for [`Self::layout_entries`].
+    fn entries<'a>(&'a self, views: &'a [wgpu::TextureView; 3]) -> [wgpu::BindGroupEntry<'a>; 5] {
+        let texture = |binding, view| wgpu::BindGroupEntry {
+            binding,
+            resource: wgpu::BindingResource::TextureView(view),
+        };
         [
+            texture(10, &views[0]),
             wgpu::BindGroupEntry {
-                binding: 5,
-                resource: wgpu::BindingResource::TextureView(&views.0),
-            },
-            wgpu::BindGroupEntry {
-                binding: 6,
+                binding: 11,
                 resource: wgpu::BindingResource::Sampler(&self.sampler),
             },
             wgpu::BindGroupEntry {
-                binding: 7,
+                binding: 12,
                 resource: self.info.as_entire_binding(),
             },
-            wgpu::BindGroupEntry {
-                binding: 8,
-                resource: wgpu::BindingResource::TextureView(&views.1),
-            },
+            texture(13, &views[1]),
+            texture(14, &views[2]),
         ]
     }
 
     /// Bytes of the depth maps.
     pub(crate) fn bytes(&self) -> u64 {
         let n = self.lights.len();
-        self.scene_maps.bytes(n) + self.mover_maps.bytes(n)
+        self.scene_maps.bytes(n) + self.mover_maps.bytes(n) + self.local.bytes()
     }
 
     /// Forgets what the maps were rendered for: the next frame renders them all.
@@ -417,10 +654,13 @@ impl ShadowMaps {
         self.scene_maps.rendered_for = None;
         self.mover_maps.rendered_for = None;
         self.movers_time = None;
+        self.local.rendered_for.iter_mut().for_each(|r| *r = None);
+        self.local.movers_time = None;
     }
 
-    /// Re-renders the static maps if a directional light turned, and the movers' maps if
-    /// the movers moved; returns whether it recorded anything.
+    /// Re-renders the static maps if a directional light turned, the movers' maps if
+    /// the movers moved, and a spot or point light's maps if it moved (or movers did);
+    /// returns whether it recorded anything.
     pub(crate) fn add_passes(
         &mut self,
         ctx: &GpuContext,
@@ -439,30 +679,51 @@ impl ShadowMaps {
             .iter()
             .map(|li| lights[*li].direction.to_array())
             .collect();
-        let redo_scene = self.scene_maps.rendered_for.as_ref() != Some(&dirs);
-        let redo_movers = self.mover_maps.used()
+        let n = self.lights.len();
+        let redo_scene = n > 0 && self.scene_maps.rendered_for.as_ref() != Some(&dirs);
+        let redo_movers = n > 0
+            && self.mover_maps.used()
             && (redo_scene
                 || self.mover_maps.rendered_for.as_ref() != Some(&dirs)
                 || self.movers_time != Some(time_s));
-        if !redo_scene && !redo_movers {
+        let movers_moved = self.local.has_movers && self.local.movers_time != Some(time_s);
+        let redo_local: Vec<bool> = self
+            .local
+            .lights
+            .iter()
+            .zip(&self.local.rendered_for)
+            .map(|((li, _, _), done)| {
+                let l = &lights[*li];
+                let key = [l.position.to_array(), l.direction.to_array()].concat();
+                movers_moved || done.as_ref().map(|d| &d[..]) != Some(&key[..])
+            })
+            .collect();
+        if !redo_scene && !redo_movers && !redo_local.contains(&true) {
             return false;
         }
-        // Projections of the current light directions: static maps in the uniforms'
-        // first half, movers' maps in the second.
-        let n = self.lights.len();
-        let mut bytes = vec![0u8; VIEW_STRIDE as usize * 2 * n];
+        // Projections of the current lights: directional static maps in the uniforms'
+        // first slots, their movers' maps next, then one slot per spot or cube layer.
+        let local_layers = self.local.layers;
+        let mut bytes = vec![0u8; VIEW_STRIDE as usize * (2 * n + local_layers).max(1)];
+        let mut put = |slot: usize, m: &[[f32; 4]; 4]| {
+            let at = slot * VIEW_STRIDE as usize;
+            bytes[at..at + 64].copy_from_slice(bytemuck::cast_slice(m));
+        };
         for (layer, li) in self.lights.iter().enumerate() {
             let dir = lights[*li].direction;
             self.info_cpu[*li] = LightMapsGpu {
                 scene: self.scene_maps.map_gpu(dir, layer),
                 movers: self.mover_maps.map_gpu(dir, layer),
+                faces: Default::default(),
             };
-            for (half, m) in [self.info_cpu[*li].scene, self.info_cpu[*li].movers]
-                .iter()
-                .enumerate()
-            {
-                let at = (half * n + layer) * VIEW_STRIDE as usize;
-                bytes[at..at + 64].copy_from_slice(bytemuck::cast_slice(&m.view_proj));
+            put(layer, &self.info_cpu[*li].scene.view_proj);
+            put(n + layer, &self.info_cpu[*li].movers.view_proj);
+        }
+        for &(li, layer, cube) in &self.local.lights {
+            let m = self.local.maps_gpu(&lights[li], layer, cube);
+            self.info_cpu[li] = m;
+            for (f, face) in m.faces.iter().enumerate().take(if cube { 6 } else { 1 }) {
+                put(2 * n + layer + f, face);
             }
         }
         ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
@@ -480,17 +741,39 @@ impl ShadowMaps {
                 }),
             }],
         });
-        let mut passes: Vec<(&MapSet, usize, usize)> = Vec::new();
+        // (texture, layer, uniform slot, indices) of each pass.
+        let all = 0..self.mover_maps.indices.end.max(self.scene_maps.indices.end);
+        let mut passes: Vec<(&wgpu::Texture, usize, usize, std::ops::Range<u32>)> = Vec::new();
         for layer in 0..n {
             if redo_scene {
-                passes.push((&self.scene_maps, 0, layer));
+                let s = &self.scene_maps;
+                passes.push((&s.texture, layer, layer, s.indices.clone()));
             }
             if redo_movers {
-                passes.push((&self.mover_maps, 1, layer));
+                let m = &self.mover_maps;
+                passes.push((&m.texture, layer, n + layer, m.indices.clone()));
             }
         }
-        for (set, half, layer) in passes {
-            let view = set.texture.create_view(&wgpu::TextureViewDescriptor {
+        for (&(li, layer, _), redo) in self.local.lights.iter().zip(&redo_local) {
+            if *redo {
+                // A point light far outside the scene has one perspective map.
+                let faces = if self.info_cpu[li].scene.kind == KIND_CUBE {
+                    6
+                } else {
+                    1
+                };
+                for f in 0..faces {
+                    passes.push((
+                        &self.local.texture,
+                        layer + f,
+                        2 * n + layer + f,
+                        all.clone(),
+                    ));
+                }
+            }
+        }
+        for (texture, layer, slot, indices) in passes {
+            let view = texture.create_view(&wgpu::TextureViewDescriptor {
                 dimension: Some(wgpu::TextureViewDimension::D2),
                 base_array_layer: layer as u32,
                 array_layer_count: Some(1),
@@ -511,15 +794,15 @@ impl ShadowMaps {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            if set.indices.is_empty() {
+            if indices.is_empty() {
                 continue;
             }
-            let offset = ((half * n + layer) as u64 * VIEW_STRIDE) as u32;
+            let offset = (slot as u64 * VIEW_STRIDE) as u32;
             pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &bg, &[offset]);
             pass.set_vertex_buffer(0, scene_gpu.vertices.slice(..));
             pass.set_index_buffer(scene_gpu.indices.slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(set.indices.clone(), 0, 0..1);
+            pass.draw_indexed(indices, 0, 0..1);
         }
         if redo_scene {
             self.scene_maps.rendered_for = Some(dirs.clone());
@@ -528,6 +811,131 @@ impl ShadowMaps {
             self.mover_maps.rendered_for = Some(dirs);
             self.movers_time = Some(time_s);
         }
+        for (((li, _, _), done), redo) in self
+            .local
+            .lights
+            .iter()
+            .zip(self.local.rendered_for.iter_mut())
+            .zip(&redo_local)
+        {
+            if *redo {
+                let l = &lights[*li];
+                let mut key = [0.0; 6];
+                key[..3].copy_from_slice(&l.position.to_array());
+                key[3..].copy_from_slice(&l.direction.to_array());
+                *done = Some(key);
+            }
+        }
+        if self.local.has_movers {
+            self.local.movers_time = Some(time_s);
+        }
         true
+    }
+}
+
+fn array_view(t: &wgpu::Texture) -> wgpu::TextureView {
+    t.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Clip-space xy/w and depth of `p` under `m`.
+    fn project(m: Mat4, p: Vec3) -> Option<Vec3> {
+        let c = m * p.extend(1.0);
+        (c.w > 0.0).then(|| c.truncate() / c.w)
+    }
+
+    #[test]
+    fn every_direction_lands_inside_the_cube_face_it_selects() {
+        let eye = Vec3::new(1.0, 2.0, -3.0);
+        let faces = cube_view_projs(eye, 50.0);
+        let mut seen = [false; 6];
+        let mut rng = 12345u32;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            rng as f32 / u32::MAX as f32 * 2.0 - 1.0
+        };
+        for k in 0..2000 {
+            let d = if k < 6 {
+                // Exactly on each axis.
+                let (f, _) = face_axes(k);
+                f
+            } else {
+                Vec3::new(next(), next(), next())
+            };
+            if d.length() < 1e-3 {
+                continue;
+            }
+            let p = eye + d.normalize() * (1.0 + 20.0 * (k % 7) as f32 / 7.0);
+            let f = cube_face(p - eye);
+            seen[f] = true;
+            let c = project(faces[f], p).expect("in front of its face");
+            assert!(
+                c.x.abs() <= 1.0 + 1e-4 && c.y.abs() <= 1.0 + 1e-4,
+                "{d:?} on face {f}: {c:?}"
+            );
+            assert!((0.0..=1.0).contains(&c.z), "{d:?}: depth {}", c.z);
+            // Every other face sees it outside its square or behind it.
+            for (g, m) in faces.iter().enumerate() {
+                if g != f {
+                    let inside =
+                        project(*m, p).is_some_and(|c| c.x.abs() < 0.999 && c.y.abs() < 0.999);
+                    assert!(!inside, "{d:?}: face {g} also covers it (selected {f})");
+                }
+            }
+        }
+        assert_eq!(seen, [true; 6]);
+        // Nearer is shallower along a face.
+        let a = project(faces[0], eye + Vec3::new(2.0, 0.1, 0.0)).unwrap();
+        let b = project(faces[0], eye + Vec3::new(8.0, 0.1, 0.0)).unwrap();
+        assert!(a.z < b.z);
+    }
+
+    #[test]
+    fn spot_maps_cover_the_cone_and_wide_spots_get_cubes() {
+        let spot = |outer_deg: f32| Light {
+            kind: LightKind::Spot,
+            position: Vec3::new(0.0, 5.0, 0.0),
+            direction: Vec3::new(0.3, -1.0, 0.1).normalize(),
+            radiance: Vec3::ONE,
+            cos_outer: outer_deg.to_radians().cos(),
+            cos_inner: (outer_deg * 0.5).to_radians().cos(),
+            swing: None,
+        };
+        let l = spot(20.0);
+        assert!(!is_cube(&l) && is_cube(&spot(75.0)));
+        let bounds = (Vec3::splat(-10.0), Vec3::splat(10.0));
+        let vp = perspective_view_proj(
+            l.position,
+            l.direction,
+            Vec3::Y,
+            spot_fov(&l),
+            far_plane(l.position, bounds),
+        );
+        // Points on the outer cone at several distances and angles project inside.
+        let (r, u) = (
+            l.direction.cross(Vec3::Y).normalize(),
+            l.direction.cross(l.direction.cross(Vec3::Y)).normalize(),
+        );
+        for k in 0..16 {
+            let a = k as f32 / 16.0 * std::f32::consts::TAU;
+            let edge = (l.direction * 20f32.to_radians().cos()
+                + (r * a.cos() + u * a.sin()) * 20f32.to_radians().sin())
+            .normalize();
+            for t in [0.5, 3.0, 12.0] {
+                let c = project(vp, l.position + edge * t).unwrap();
+                assert!(c.x.abs() < 1.0 && c.y.abs() < 1.0, "{c:?}");
+                assert!((0.0..1.0).contains(&c.z));
+            }
+        }
+        assert_eq!(local_px(4096), 512);
+        assert_eq!(local_px(64), 64);
     }
 }

@@ -25,6 +25,8 @@ pub enum Lookup {
     GridNearest,
     /// The shared grid's 8 neighbouring voxels, trilinearly (paper 000 §3.1.3).
     GridTrilinear,
+    /// The shared shadow maps, every froxel (`maps`).
+    Maps,
 }
 
 impl Lookup {
@@ -34,6 +36,7 @@ impl Lookup {
             (Mode::Reference, _) => Lookup::Rays,
             (Mode::Shared, false) => Lookup::GridNearest,
             (Mode::Shared, true) => Lookup::GridTrilinear,
+            (Mode::Maps, _) => Lookup::Maps,
         }
     }
 
@@ -42,6 +45,7 @@ impl Lookup {
             Lookup::Rays => 0,
             Lookup::GridNearest => FLAG_SHARED,
             Lookup::GridTrilinear => FLAG_SHARED | FLAG_TRILINEAR,
+            Lookup::Maps => FLAG_MAPS,
         }
     }
 }
@@ -76,9 +80,11 @@ impl World {
     ) -> anyhow::Result<World> {
         settings.validate()?;
         let shared = settings.mode == Mode::Shared;
+        // `maps` shares the maps and the transmittance volumes, not the grid.
+        let light_space = settings.shares_light_space();
         let light_media = media_transmittance::plan(
             &scene,
-            if shared {
+            if light_space {
                 settings.transmittance_voxel_m
             } else {
                 0.0
@@ -104,7 +110,11 @@ impl World {
             shadow_maps: ShadowMaps::new(
                 &ctx,
                 &scene,
-                if shared { settings.shadow_map_px } else { 0 },
+                if light_space {
+                    settings.shadow_map_px
+                } else {
+                    0
+                },
             ),
             transmittance: MediaTransmittance::new(&ctx, &gpu.layout, &scene, &light_media),
             layer: layer_plan.map(|p| MediaLayer::new(&ctx, &gpu.layout, p)),
