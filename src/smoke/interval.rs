@@ -147,8 +147,8 @@ impl GaussianAlongRay {
     ///
     /// `τ = σ √π/(2k) · e^{−k² h²} · (erf(k (s1 − b)) − erf(k (s0 − b)))`, `k = √50/u`.
     ///
-    /// With `s0 = 0` this is `σ u √π/(2√50) · e^{−50 d² sin²α/u²} · (erf(√50 (s − d cos α)/u)
-    /// + erf(√50 d cos α/u))`. 001 prints the factor `e^{−50 d² sin²α/u²}` as a second
+    /// With `s0 = 0` this is
+    /// `σ u √π/(2√50) · e^{−50 d² sin²α/u²} · (erf(√50 (s − d cos α)/u) + erf(√50 d cos α/u))`. 001 prints the factor `e^{−50 d² sin²α/u²}` as a second
     /// exponential *multiplying* `T_V`; it belongs inside the exponent, multiplying the erf
     /// difference (it is the peak density on the ray over the peak density at the centre).
     pub fn optical_depth(&self, s0_m: f64, s1_m: f64) -> f64 {
@@ -677,5 +677,235 @@ mod tests {
                 stats.line(&format!("C_scat Simpson {steps:>2} steps"))
             );
         }
+    }
+
+    /// 001's way: Simpson on the raw integrand `T_L T_V σt` (T_V from the closed form),
+    /// reported beside the bounded form to show why the bounded form is used.
+    #[test]
+    fn raw_integrand_simpson_for_comparison() {
+        let mut rng = TestRng::new(1501);
+        let mut stats: Vec<ErrorStats> = SIMPSON_STEPS
+            .iter()
+            .map(|_| ErrorStats::default())
+            .collect();
+        for _ in 0..2_000 {
+            let case = random_case(&mut rng);
+            let c_ref = case.raw.c_scat(case.length, case.light);
+            for (steps, stat) in SIMPSON_STEPS.iter().zip(&mut stats) {
+                let n = f64::from(*steps * 2);
+                let h = case.length / n;
+                let f = |s: f64| {
+                    let t_l = case.light.tau_min
+                        + (case.light.tau_max - case.light.tau_min) * s / case.length;
+                    (-t_l - case.particle.optical_depth(0.0, s)).exp()
+                        * case.particle.extinction_per_m(s)
+                };
+                let mut sum = f(0.0) + f(case.length);
+                for j in 1..(*steps * 2) {
+                    sum += f(f64::from(j) * h) * if j % 2 == 1 { 4.0 } else { 2.0 };
+                }
+                let c = if case.length > 0.0 {
+                    sum * h / 3.0
+                } else {
+                    0.0
+                };
+                stat.add(relative_error(c, c_ref));
+            }
+        }
+        for (steps, stat) in SIMPSON_STEPS.iter().zip(&stats) {
+            println!(
+                "{}",
+                stat.line(&format!("raw-integrand Simpson {steps:>2} steps"))
+            );
+        }
+    }
+
+    /// The constant-extinction closed form (001 §3.7, rewritten) against quadrature of
+    /// `σ T_L e^{−σ s}` on 10,000 random intervals: σ up to 10⁴ m⁻¹, z up to 10⁴ m.
+    #[test]
+    fn constant_extinction_matches_quadrature() {
+        let mut rng = TestRng::new(7);
+        let mut stats = ErrorStats::default();
+        for i in 0..10_000 {
+            let sigma = rng.log_uniform(1e-6, 1e4);
+            let z_min = rng.log_uniform(1e-3, 1e4);
+            let z_max = z_min + rng.log_uniform(1e-6, 1e4);
+            let length = z_max - z_min;
+            let tau_min = rng.uniform(0.0, 10.0);
+            let tau_max = if rng.unit() < 0.1 {
+                tau_min
+            } else {
+                rng.uniform(0.0, 10.0)
+            };
+            let light = LightDepths { tau_min, tau_max };
+            // The integrand can be a spike of width 1/σ at s = 0 inside a 10⁴ m interval:
+            // panels graded geometrically towards 0 so that some panel resolves it.
+            let f =
+                |s: f64| sigma * (-(tau_min + (tau_max - tau_min) * s / length) - sigma * s).exp();
+            let mut reference = quad::integrate(&f, 0.0, length * 2f64.powi(-60), 50);
+            for k in 0..60 {
+                reference +=
+                    quad::integrate16(&f, length * 2f64.powi(-k - 1), length * 2f64.powi(-k));
+            }
+            let shade = constant_extinction(sigma, z_min, z_max, light);
+            assert!(shade.scattered.is_finite() && shade.attenuation.is_finite());
+            let e = relative_error(shade.scattered, reference);
+            assert!(
+                e <= 1e-4,
+                "case {i}: σ {sigma} z {z_min}..{z_max} {light:?}: {} vs {reference}",
+                shade.scattered
+            );
+            assert_eq!(shade.attenuation, (-sigma * length).exp());
+            stats.add(e);
+        }
+        println!("{}", stats.line("constant extinction"));
+    }
+
+    /// 001 §3.7's printed closed form, evaluated as printed.
+    fn printed_eq7(sigma: f64, z_min: f64, z_max: f64, light: LightDepths) -> f64 {
+        let (t0, t1) = (light.tau_min, light.tau_max);
+        sigma
+            * (z_max - z_min)
+            * ((sigma * z_max + t1).exp() - (sigma * z_min + t0).exp())
+            * (-sigma * z_max - t1 - t0).exp()
+            / (sigma * z_max - sigma * z_min + t1 - t0)
+    }
+
+    #[test]
+    fn printed_eq7_overflows_where_the_rewrite_does_not() {
+        let light = LightDepths {
+            tau_min: 0.5,
+            tau_max: 2.0,
+        };
+        // Moderate depths: the two agree.
+        let near = constant_extinction(2.0, 1.0, 1.5, light).scattered;
+        assert!((near - printed_eq7(2.0, 1.0, 1.5, light)).abs() < 1e-14);
+        // σ z_max = 10⁸: the printed form is inf · 0.
+        assert!(!printed_eq7(1e4, 1e4 - 0.01, 1e4, light).is_finite());
+        let far = constant_extinction(1e4, 1e4 - 0.01, 1e4, light).scattered;
+        let reference = quad::integrate16(
+            &|s| 1e4 * (-(0.5 + 1.5 * s / 0.01) - 1e4 * s).exp(),
+            0.0,
+            0.01,
+        );
+        assert!(
+            relative_error(far, reference) < 1e-9,
+            "{far} vs {reference}"
+        );
+    }
+
+    /// 001 Eq. 10 as printed: the `e^{−50 d² sin²α / u²}` factor outside the exponential.
+    #[test]
+    fn printed_eq10_disagrees_with_quadrature_and_the_correction_does_not() {
+        let (sigma, u, d, cos_alpha, length) = (20.0, 0.5, 0.4, 0.8_f64, 0.6);
+        let sin2 = 1.0 - cos_alpha * cos_alpha;
+        let c = 5.0 * 2f64.sqrt() / u;
+        let printed = (-(2f64.sqrt() * std::f64::consts::PI.sqrt() / 20.0)
+            * sigma
+            * u
+            * (erf(c * d * cos_alpha) - erf(c * (d * cos_alpha - length))))
+        .exp()
+            * (-50.0 * d * d * sin2 / (u * u)).exp();
+        let raw = RawParticle {
+            sigma,
+            u,
+            b: d * cos_alpha,
+            h2: d * d * sin2,
+        };
+        let exact = (-raw.tau(0.0, length)).exp();
+        let ours = (-GaussianAlongRay::from_entry(sigma, u, d, cos_alpha)
+            .optical_depth(0.0, length))
+        .exp();
+        assert!(relative_error(ours, exact) < 1e-12, "{ours} vs {exact}");
+        assert!(relative_error(printed, exact) > 0.5, "{printed} vs {exact}");
+    }
+
+    #[test]
+    fn empty_interval_zero_density_and_zero_size_scatter_nothing() {
+        let light = LightDepths {
+            tau_min: 1.0,
+            tau_max: 3.0,
+        };
+        let none = IntervalShade {
+            scattered: 0.0,
+            attenuation: 1.0,
+        };
+        let dense = GaussianAlongRay::from_entry(1e4, 0.1, 0.05, 0.9);
+        // z_min = z_max, far away.
+        assert_eq!(constant_extinction(1e4, 1e4, 1e4, light), none);
+        assert_eq!(gaussian_simpson(&dense, 0.0, light, 4), none);
+        assert_eq!(gaussian_reference(&dense, 0.0, light), none);
+        // σ = 0.
+        assert_eq!(constant_extinction(0.0, 1.0, 2.0, light), none);
+        let clear = GaussianAlongRay::from_entry(0.0, 0.1, 0.05, 0.9);
+        assert_eq!(gaussian_simpson(&clear, 0.1, light, 4), none);
+        // u = 0: a particle of zero size.
+        let point = GaussianAlongRay::from_entry(1e4, 0.0, 0.0, 1.0);
+        assert_eq!(gaussian_reference(&point, 0.1, light), none);
+        assert_eq!(point.optical_depth(0.0, 0.1), 0.0);
+    }
+
+    /// τ_min = τ_max: `C = T_L (1 − A)` exactly, at any step count.
+    #[test]
+    fn uniform_light_is_exact_at_one_step() {
+        let light = LightDepths {
+            tau_min: 0.7,
+            tau_max: 0.7,
+        };
+        let p = GaussianAlongRay::from_entry(300.0, 0.2, 0.15, 0.95);
+        let one = gaussian_simpson(&p, 0.3, light, 1);
+        let expected = (-0.7f64).exp() * -(-p.optical_depth(0.0, 0.3)).exp_m1();
+        assert_eq!(one.scattered, expected);
+        let constant = constant_extinction(3.0, 1e4, 1e4 + 0.25, light).scattered;
+        let expected = (-0.7f64).exp() * -(-0.75f64).exp_m1();
+        assert!(relative_error(constant, expected) < 1e-15);
+    }
+
+    /// Rays through the centre (`d cos α ≈ d`, `sin α` from `(1 − cos α)(1 + cos α)`) and
+    /// rays that barely touch the proxy (τ ≈ σ e⁻¹¹⁰): closed form and reference against
+    /// quadrature.
+    #[test]
+    fn grazing_and_central_rays() {
+        let light = LightDepths {
+            tau_min: 0.2,
+            tau_max: 4.0,
+        };
+        let u = 0.3;
+        for (sigma, d, cos_alpha) in [
+            (50.0, 0.3, 1.0),
+            (50.0, 0.3, 1.0 - 1e-12),
+            (1e4, 0.3, 1.0 - 1e-9),
+            (1e4, 1e-9, 1.0),
+            (5.0, 0.4, 1.0 - 1e-6),
+            // Impact parameter 0.449 of a 0.45 proxy radius: the ray barely touches it.
+            (1e4, 0.45, (1.0 - (0.449f64 / 0.45).powi(2)).sqrt()),
+        ] {
+            let b = d * cos_alpha;
+            let h2 = d * d * (1.0 - cos_alpha) * (1.0 + cos_alpha);
+            let length = 2.0 * b.max(0.0);
+            let raw = RawParticle { sigma, u, b, h2 };
+            let p = GaussianAlongRay::from_entry(sigma, u, d, cos_alpha);
+            let tau = p.optical_depth(0.0, length);
+            assert!(relative_error(tau, raw.tau(0.0, length)) < 1e-10, "{p:?}");
+            let c = gaussian_reference(&p, length, light).scattered;
+            let c_ref = raw.c_scat(length, light);
+            assert!(relative_error(c, c_ref) < 1e-6, "{p:?}: {c} vs {c_ref}");
+        }
+    }
+
+    #[test]
+    fn erf_diff_agrees_with_erfc_where_both_are_exact() {
+        // Far in the tail: erf(6) − erf(5) is 1.5e-12, lost entirely by erf's rounding.
+        let d = erf_diff(5.0, 6.0);
+        assert!(relative_error(d, erfc(5.0) - erfc(6.0)) < 1e-14);
+        assert!(relative_error(erf_diff(-6.0, -5.0), d) < 1e-14);
+        // Close arguments: the Gauss–Legendre branch against the derivative.
+        let x = 3.0_f64;
+        // The width as represented: 3 + 1e-9 rounds.
+        let w = (x + 1e-9) - x;
+        let slope = FRAC_2_SQRT_PI * (-(x + 0.5 * w) * (x + 0.5 * w)).exp();
+        assert!(relative_error(erf_diff(x, x + w), slope * w) < 1e-12);
+        assert_eq!(erf_diff(2.0, 2.0), 0.0);
+        assert_eq!(erf_diff(1.0, 0.5), -erf_diff(0.5, 1.0));
     }
 }

@@ -8,6 +8,7 @@
 //!
 //! Everything here is `f64`: these are the twins the `f32` shaders are tested against.
 
+pub mod avsm;
 pub mod interval;
 
 /// A small seeded generator for the randomised tests (SplitMix64), so that the tests need
