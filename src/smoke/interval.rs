@@ -247,8 +247,13 @@ pub fn constant_extinction(
 /// nothing. `1 − T_V = −expm1(−τ)` and `T_V − A = T_V · (−expm1(−τ(s, Δ)))` with `τ(s, Δ)`
 /// from the closed form directly, so neither is a difference of nearly equal numbers.
 ///
-/// The step count that meets a relative error of 10⁻⁴ depends on how sharply `F` rises
-/// (see the tests); [`gaussian_reference`] refines adaptively and meets it everywhere.
+/// The step count that meets a relative error of 10⁻⁴ depends on how sharply `F` rises.
+/// Measured on the 10,000 random intervals of the tests (σ to 10⁴ m⁻¹, u from 1 mm to 10 m,
+/// proxy radius 1.5 u, `τ_L` to 10): 16 steps, mean 5·10⁻⁵, 92 % within 10⁻⁴, max 4·10⁻²;
+/// 64 steps, mean 4·10⁻⁷, all but 1 within 10⁻⁴, max 2·10⁻³ (001's raw integrand at 64
+/// steps: max 1.5·10⁻²; at 16: max 0.85). No fixed count meets 10⁻⁴ everywhere (a dense
+/// particle under a steep light gradient puts the whole of `F`'s rise between two nodes);
+/// [`gaussian_reference`] refines adaptively and does.
 pub fn gaussian_simpson(
     particle: &GaussianAlongRay,
     length_m: f64,
@@ -677,6 +682,10 @@ mod tests {
                 stats.line(&format!("C_scat Simpson {steps:>2} steps"))
             );
         }
+        // The figures documented on `gaussian_simpson`, as regression bounds.
+        let (at16, at64) = (&simpson_stats[4], &simpson_stats[5]);
+        assert!(at16.sum / at16.count as f64 <= 1e-4 && at16.within >= 9_000);
+        assert!(at64.max <= 1e-2 && at64.within >= 9_990);
     }
 
     /// 001's way: Simpson on the raw integrand `T_L T_V σt` (T_V from the closed form),
