@@ -5,10 +5,12 @@
 //!   overflow, and the single-scattering integral `C_scat` with Simpson's rule.
 //! - [`avsm`]: one light-space texel of an adaptive volumetric shadow map (seed 002): node
 //!   insertion per particle, area-based node removal, lookup.
+//! - [`emitter`]: an emitter's live particles as a pure function of time.
 //!
 //! Everything here is `f64`: these are the twins the `f32` shaders are tested against.
 
 pub mod avsm;
+pub mod emitter;
 pub mod interval;
 
 /// A small seeded generator for the randomised tests (SplitMix64), so that the tests need
