@@ -17,7 +17,11 @@
 //! point of the ray closest to its centre (`σt ∝ e^{−50 (s−b)²/u²}` along the ray: standard
 //! deviation `u/10`; ±2 of them hold 95 %), while its proxy reaches ±1.5 u; so the particle
 //! inserts three nodes: `b − 2u/10`, `b`, `b + 2u/10`, each clamped into the proxy
-//! interval `[entry, exit]` (duplicates dropped). Each new node's transmittance is the
+//! interval `[entry, exit]` (duplicates dropped). Measured on the test's cloud (10,000 rays,
+//! mean absolute error at 4/8/16 nodes): entry/centre/exit as 002 would (half-width 1.5 u,
+//! clamped to the proxy) 0.053/0.019/0.013; ±0.1 u 0.048/0.023/0.020; ±0.2 u (kept)
+//! 0.038/0.0064/0.0034; ±0.3 u 0.037/0.0061/0.0030 but a worse maximum at 16 nodes
+//! (0.22 against 0.08). Each new node's transmittance is the
 //! curve's (interpolated) value there times the particle's own exact transmittance
 //! `e^{−τ(entry, depth)}` (closed form, [`GaussianAlongRay::optical_depth`]); every existing
 //! node behind the entry is multiplied by the same exact factor. What approximates is the
