@@ -11,6 +11,8 @@
 //! - [`protocol`]: the viewer protocol's wire types (messages, frame header), shared by
 //!   the server and its clients.
 //! - [`server`]: `fogcast serve`, streaming every viewer's frames to browsers over WebSocket.
+//! - [`smoke`]: smoke particles: the interval integral (seed 001) and adaptive volumetric
+//!   shadow maps (seed 002), CPU references.
 //! - [`settings_overrides`]: renderer settings given by flags or a config file's keys.
 //! - [`truth`]: the CPU ground-truth renderer every error is measured against.
 
@@ -33,4 +35,5 @@ pub mod report;
 pub mod scene;
 pub mod server;
 pub mod settings_overrides;
+pub mod smoke;
 pub mod truth;

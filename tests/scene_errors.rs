@@ -338,3 +338,103 @@ fn volumes_are_not_a_medium_kind_and_typos_are_named() {
     let msg = load_error(&with_volume("radius", "raduis = 1.0"));
     assert_mentions(&msg, &["raduis"]);
 }
+
+/// `VALID` with an `[[emitter]]` table whose line starting with `old` (if any) is `new`.
+fn with_emitter(old: &str, new: &str) -> String {
+    let emitter = "\n[[emitter]]\nshape = \"disc\"\nposition = [0.0, 2.0, 0.0]\nradius = 0.3\n\
+                   rate_per_s = 20.0\nlifetime_s = 4.0\nvelocity = [0.0, 0.5, 0.0]\n\
+                   spread = 0.2\nbuoyancy = 0.3\nwind = [0.5, 0.0, 0.0]\ngrowth = 0.2\n\
+                   falloff_u = 0.4\nscattering = [2.0, 2.0, 2.0]\nabsorption = 0.5\n\
+                   g = 0.3\nmax_particles = 500\n";
+    let mut hits = 0;
+    let lines: Vec<&str> = emitter
+        .lines()
+        .map(|line| {
+            if !old.is_empty() && line.starts_with(old) {
+                hits += 1;
+                new
+            } else {
+                line
+            }
+        })
+        .collect();
+    assert!(
+        old.is_empty() || hits == 1,
+        "test setup: `{old}` must start one line"
+    );
+    format!("{VALID}{}", lines.join("\n"))
+}
+
+#[test]
+fn a_valid_emitter_loads_and_simulates() {
+    let scene = Scene::from_toml(&with_emitter("", ""), Path::new("inline.toml")).unwrap();
+    assert_eq!(scene.emitters.len(), 1);
+    let live = fogcast::smoke::emitter::particles_at(&scene.emitters[0], 10.0);
+    assert_eq!(live.len(), 80);
+}
+
+#[test]
+fn emitter_values_out_of_range() {
+    let cases: [(String, &[&str]); 12] = [
+        (
+            with_emitter("rate_per_s", "rate_per_s = 0.0"),
+            &["emitter[0].rate_per_s", "0"],
+        ),
+        (
+            with_emitter("lifetime_s", "lifetime_s = -1.0"),
+            &["emitter[0].lifetime_s", "-1"],
+        ),
+        (
+            with_emitter("position", "position = [0.0, nan, 0.0]"),
+            &["emitter[0].position", "NaN"],
+        ),
+        (
+            with_emitter("radius", "radius = 0.0"),
+            &["emitter[0].radius", "0", "disc"],
+        ),
+        (
+            with_emitter("shape", "shape = \"point\""),
+            &["emitter[0].radius", "0.3", "point"],
+        ),
+        (
+            with_emitter("spread", "spread = -0.5"),
+            &["emitter[0].spread", "-0.5"],
+        ),
+        (
+            with_emitter("wind", "wind = [inf, 0.0, 0.0]"),
+            &["emitter[0].wind", "inf"],
+        ),
+        (
+            with_emitter("growth", "growth = -0.1"),
+            &["emitter[0].growth", "-0.1", "shrink"],
+        ),
+        (
+            with_emitter("falloff_u", "falloff_u = 0.0"),
+            &["emitter[0].falloff_u", "0"],
+        ),
+        (
+            with_emitter("scattering", "scattering = [2.0, -1.0, 2.0]"),
+            &["emitter[0].scattering", "-1"],
+        ),
+        (with_emitter("g = ", "g = 1.0"), &["emitter[0].g", "1"]),
+        (
+            with_emitter("max_particles", "max_particles = 2000000"),
+            &["emitter[0].max_particles", "2000000"],
+        ),
+    ];
+    for (text, parts) in cases {
+        assert_mentions(&load_error(&text), parts);
+    }
+}
+
+#[test]
+fn emitter_typos_and_unknown_shapes_are_named() {
+    assert_mentions(
+        &load_error(&with_emitter("lifetime_s", "lifetime = 4.0")),
+        &["lifetime"],
+    );
+    assert_mentions(
+        &load_error(&with_emitter("shape", "shape = \"cone\"")),
+        &["cone"],
+    );
+}

@@ -329,6 +329,69 @@ pub struct VolumeDesc {
     pub noise: Option<Noise>,
 }
 
+/// Where an emitter's particles are born.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum EmitterShape {
+    /// All at `position`.
+    #[default]
+    Point,
+    /// Uniformly inside a ball of `radius` about `position`.
+    Sphere,
+    /// Uniformly on a horizontal disc of `radius` centred on `position` (a chimney mouth).
+    Disc,
+}
+
+/// A smoke emitter (issue 15): Gaussian particles (001 Eq. 9) born at a steady rate,
+/// moving in closed form (`crate::smoke::emitter::particles_at`). Parsed and simulated on
+/// the CPU; not rendered yet.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmitterDesc {
+    /// Where particles are born.
+    #[serde(default)]
+    pub shape: EmitterShape,
+    /// Centre of the shape, metres.
+    pub position: [f32; 3],
+    /// Radius of a `sphere` or `disc`, metres (ignored for a `point`).
+    #[serde(default)]
+    pub radius: f32,
+    /// Particles born per second.
+    pub rate_per_s: f32,
+    /// How long a particle lives, seconds.
+    pub lifetime_s: f32,
+    /// Initial velocity of every particle, m/s.
+    #[serde(default)]
+    pub velocity: [f32; 3],
+    /// Speed of each particle's random extra velocity (a uniform direction), m/s.
+    #[serde(default)]
+    pub spread: f32,
+    /// Upward (+y) acceleration, m/s² (negative: the smoke sinks).
+    #[serde(default)]
+    pub buoyancy: f32,
+    /// Drift added to every particle's velocity, m/s.
+    #[serde(default)]
+    pub wind: [f32; 3],
+    /// How fast a particle's falloff distance `u` grows, metres per second.
+    #[serde(default)]
+    pub growth: f32,
+    /// The falloff distance `u` at birth (001 §3.8: `σt = σ e^{−50}` at `u`), metres.
+    pub falloff_u: f32,
+    /// Scattering coefficient σs at a particle's centre, per channel, m⁻¹.
+    pub scattering: [f32; 3],
+    /// Absorption coefficient σa at a particle's centre, m⁻¹.
+    #[serde(default)]
+    pub absorption: f32,
+    /// Henyey-Greenstein asymmetry.
+    #[serde(default)]
+    pub g: f32,
+    /// At most this many particles live at once; the oldest go first.
+    pub max_particles: u32,
+    /// Picks the pattern of birth points and spread directions (0..=1000).
+    #[serde(default)]
+    pub seed: u32,
+}
+
 /// The scene file as written.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -353,6 +416,9 @@ pub struct SceneDesc {
     /// Moving occluders (spinning boxes).
     #[serde(default, rename = "mover")]
     pub movers: Vec<MoverDesc>,
+    /// Smoke emitters (parsed and simulated on the CPU; not rendered yet).
+    #[serde(default, rename = "emitter")]
+    pub emitters: Vec<EmitterDesc>,
     /// Where viewers stand.
     pub camera: CameraPath,
 }

@@ -114,6 +114,7 @@ pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
     Ok(SceneDesc {
         volumes: Vec::new(),
         movers: Vec::new(),
+        emitters: Vec::new(),
         name,
         render: RenderDefaults {
             far_m: size.length().clamp(8.0, 1000.0),

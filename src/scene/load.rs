@@ -3,10 +3,12 @@
 //! loop, read without the meshes.
 
 use super::format::NameAndCamera;
-use super::validate::{validate_lights, validate_media, validate_render, validate_volumes};
+use super::validate::{
+    validate_emitters, validate_lights, validate_media, validate_render, validate_volumes,
+};
 use super::{
-    builtin_scene, gltf_load, media, mesh, CameraPath, Light, LightKind, Mover, Scene, SceneDesc,
-    SceneError, MAX_LIGHTS,
+    builtin_scene, gltf_load, media, mesh, CameraPath, EmitterDesc, Light, LightKind, Mover, Scene,
+    SceneDesc, SceneError, MAX_LIGHTS,
 };
 use glam::Vec3;
 use serde::de::DeserializeOwned;
@@ -117,6 +119,7 @@ impl Scene {
         let lights_world = validate_lights(&desc.lights)?;
         validate_media(&desc.media)?;
         validate_volumes(&desc.volumes)?;
+        validate_emitters(&desc.emitters)?;
         desc.camera.validate()?;
 
         // World bounds of geometry and bounded media; the camera path if nothing else.
@@ -172,8 +175,17 @@ impl Scene {
             .enumerate()
             .map(|(i, m)| Mover::new(i, m, origin))
             .collect::<Result<Vec<_>, _>>()?;
+        let emitters = desc
+            .emitters
+            .iter()
+            .map(|e| EmitterDesc {
+                position: to_render(e.position).to_array(),
+                ..e.clone()
+            })
+            .collect();
         Ok(Scene {
             movers,
+            emitters,
             name: desc.name,
             render: desc.render,
             mesh,

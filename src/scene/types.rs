@@ -165,6 +165,9 @@ pub struct Scene {
     pub dropped_lights: usize,
     /// Moving occluders (render space, at time 0); not in `mesh`.
     pub movers: Vec<Mover>,
+    /// Smoke emitters, validated, `position` in render space (simulated on the CPU by
+    /// [`crate::smoke::emitter::particles_at`]; not rendered yet).
+    pub emitters: Vec<super::EmitterDesc>,
 }
 
 impl Scene {

@@ -2,8 +2,8 @@
 //! needs); errors name the field and the offending value.
 
 use super::{
-    invalid, Light, LightDesc, LightKind, MediumDesc, MediumKind, Noise, RenderDefaults,
-    SceneError, Swing, VolumeDesc,
+    invalid, EmitterDesc, EmitterShape, Light, LightDesc, LightKind, MediumDesc, MediumKind, Noise,
+    RenderDefaults, SceneError, Swing, VolumeDesc,
 };
 use glam::Vec3;
 
@@ -402,6 +402,94 @@ pub(super) fn validate_volumes(volumes: &[VolumeDesc]) -> Result<(), SceneError>
         }
         if let Some(n) = v.noise {
             validate_noise(&f, &n)?;
+        }
+    }
+    Ok(())
+}
+
+/// The most particles one emitter may keep alive (the GPU's per-emitter buffers are sized
+/// from it).
+pub(crate) const MAX_EMITTER_PARTICLES: u32 = 1 << 20;
+
+pub(super) fn validate_emitters(emitters: &[EmitterDesc]) -> Result<(), SceneError> {
+    for (i, e) in emitters.iter().enumerate() {
+        let f = |name: &str| format!("emitter[{i}].{name}");
+        check_finite(&f("position"), &e.position)?;
+        if e.shape == EmitterShape::Point {
+            check_range(&f("radius"), e.radius, 0.0, 0.0, "must be 0 (or left out) for a point emitter; use shape = \"sphere\" or \"disc\" for a radius")?;
+        } else {
+            check_range(
+                &f("radius"),
+                e.radius,
+                1e-3,
+                1e4,
+                "must be between 0.001 and 10000 m for a sphere or disc emitter",
+            )?;
+        }
+        check_range(
+            &f("rate_per_s"),
+            e.rate_per_s,
+            1e-3,
+            1e5,
+            "must be between 0.001 and 100000 particles per second",
+        )?;
+        check_range(
+            &f("lifetime_s"),
+            e.lifetime_s,
+            1e-3,
+            1e4,
+            "must be between 0.001 and 10000 seconds",
+        )?;
+        check_finite(&f("velocity"), &e.velocity)?;
+        if Vec3::from(e.velocity).length() > 1e3 {
+            return Err(invalid(
+                f("velocity"),
+                e.velocity,
+                "must be at most 1000 m/s",
+            ));
+        }
+        check_range(
+            &f("spread"),
+            e.spread,
+            0.0,
+            1e3,
+            "must be between 0 and 1000 m/s",
+        )?;
+        check_range(
+            &f("buoyancy"),
+            e.buoyancy,
+            -1e3,
+            1e3,
+            "must be between -1000 and 1000 m/s²",
+        )?;
+        check_finite(&f("wind"), &e.wind)?;
+        if Vec3::from(e.wind).length() > 1e3 {
+            return Err(invalid(f("wind"), e.wind, "must be at most 1000 m/s"));
+        }
+        check_range(
+            &f("growth"),
+            e.growth,
+            0.0,
+            1e3,
+            "must be between 0 and 1000 m/s (particles do not shrink)",
+        )?;
+        check_range(
+            &f("falloff_u"),
+            e.falloff_u,
+            1e-3,
+            1e3,
+            "must be between 0.001 and 1000 m",
+        )?;
+        validate_optics(&f, e.scattering, e.absorption, e.g, [0.0; 3])?;
+        if e.max_particles > MAX_EMITTER_PARTICLES {
+            return Err(invalid(
+                f("max_particles"),
+                e.max_particles,
+                "must be at most 1048576",
+            ));
+        }
+        if e.seed > 1000 {
+            return Err(invalid(f("seed"), e.seed, "must be between 0 and 1000"));
         }
     }
     Ok(())
