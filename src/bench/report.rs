@@ -17,6 +17,10 @@ pub const MAX_TIME_RATIO: f64 = 0.6;
 pub const MAX_RAY_GROWTH: f64 = 6.0;
 /// See [`MAX_TIME_RATIO`].
 pub const MAX_FLIP: f64 = 0.05;
+/// Issue 14's bound on `shared`'s frame time against `reference`'s at the most viewers.
+pub const MAX_TIME_RATIO_14: f64 = 0.35;
+/// Issue 14's bound on each viewer beyond the first, against one `reference` viewer.
+pub const MAX_MARGINAL_VIEWER: f64 = 0.25;
 /// Issue 14's bound on `shared`'s frame time against `maps`' at the most viewers.
 pub const MAX_TIME_VS_MAPS: f64 = 0.8;
 
@@ -221,7 +225,33 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
             });
         }
     }
-    // Issue 14: `shared` against the engines' way, `maps`.
+    // Issue 14: `shared` against `reference` at its tighter bound, the cost of each
+    // viewer beyond the first against one `reference` viewer, and against `maps`.
+    if let (Some(s_lo), Some(s_hi), Some(r_lo), Some(r_hi)) = (
+        point(r, Scenario::Path, "shared", lo),
+        point(r, Scenario::Path, "shared", hi),
+        point(r, Scenario::Path, "reference", lo),
+        reference_hi,
+    ) {
+        out.push(Check {
+            what: format!(
+                "shared: frame GPU ms at {hi} viewers / reference's (median of per-frame ratios; issue 14)"
+            ),
+            value: paired_ratio(s_hi, r_hi),
+            bound: Some(MAX_TIME_RATIO_14),
+        });
+        if hi > lo {
+            let marginal = (s_hi.frame_gpu_ms.median - s_lo.frame_gpu_ms.median) / (hi - lo) as f64;
+            out.push(Check {
+                what: format!(
+                    "shared: marginal viewer (T{hi} − T{lo}) / {} / reference's {lo}-viewer frame",
+                    hi - lo
+                ),
+                value: ratio(marginal, r_lo.frame_gpu_ms.median),
+                bound: Some(MAX_MARGINAL_VIEWER),
+            });
+        }
+    }
     if let (Some(s), Some(m)) = (
         point(r, Scenario::Path, "shared", hi),
         point(r, Scenario::Path, "maps", hi),
