@@ -420,36 +420,22 @@ struct MediumSample {
     g: f32,
 }
 
+// Every medium at p (what `reference` and the analytic paths read).
 fn sample_media(p: vec3f) -> MediumSample {
-    var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
-    var gw = 0.0;
-    for (var i = 0u; i < frame.medium_count; i++) {
-        let m = media[i];
-        let d = medium_density(m, p);
-        if d <= 0.0 {
-            continue;
-        }
-        let ss = m.scattering * d;
-        s.scattering += ss;
-        s.extinction += (ss.x + ss.y + ss.z) / 3.0 + m.absorption * d;
-        s.emission += m.emission * d;
-        let w = ss.x + ss.y + ss.z;
-        s.g += m.g * w;
-        gw += w;
-    }
-    if gw > 0.0 {
-        s.g /= gw;
-    }
-    return s;
+    return sample_media_where(p, ALL_MEDIA);
 }
 
-// `sample_media` over the media whose `in_layer` is `layer` only.
+// `sample_media_where(p, layer)`: every medium.
+const ALL_MEDIA: u32 = 2u;
+
+// The media at p whose `in_layer` is `layer` (0 or 1), or all of them (`ALL_MEDIA`):
+// σs and emission summed, σt grey, g weighted by scattering.
 fn sample_media_where(p: vec3f, layer: u32) -> MediumSample {
     var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
     var gw = 0.0;
     for (var i = 0u; i < frame.medium_count; i++) {
         let m = media[i];
-        if m.in_layer != layer {
+        if layer != ALL_MEDIA && m.in_layer != layer {
             continue;
         }
         let d = medium_density(m, p);

@@ -127,21 +127,14 @@ impl FroxelLighting {
         // Without a grid its bindings are unused; the frustum buffer stands in.
         let grid_buffer = grid.map_or(&volumes.frustum, |g| &g.grid);
         let bricks = grid.map_or(&volumes.frustum, |g| &g.brick_table);
-        let own = [
+        let own = crate::gpu::buffer_entries(&[
             grid_buffer,
             &volumes.frustum,
             &volumes.froxels,
             set.history.buffer(volumes),
             bricks,
             &volumes.column_limit,
-        ]
-        .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource: b.as_entire_binding(),
-        })
-        .collect();
+        ]);
         let bg = maps.stage_bind_group(ctx, "froxel lighting", &self.layout, own);
         dispatch(
             enc,
