@@ -242,13 +242,11 @@ fn zero_area_triangles_are_dropped() {
 }
 
 /// `VALID` with a `[[volume]]` table whose line starting with `old` (if any) is `new`.
-fn with_volume(old: &str, new: &str) -> String {
-    let volume = "\n[[volume]]\ncenter = [0.0, 1.5, 0.0]\nradius = 1.0\n\
-                  scattering = [0.5, 0.5, 0.5]\nabsorption = 0.1\n\
-                  [volume.displacement]\namplitude = 0.3\nfrequency = 2.0\n\
-                  [volume.motion]\nvelocity = [1.0, 0.0, 0.0]\nperiod_s = 4.0\n";
+/// `VALID` and then `table` with the one line that starts with `old` replaced by `new`
+/// (`old` empty: unchanged).
+fn replace_line(table: &str, old: &str, new: &str) -> String {
     let mut hits = 0;
-    let lines: Vec<&str> = volume
+    let lines: Vec<&str> = table
         .lines()
         .map(|line| {
             if !old.is_empty() && line.starts_with(old) {
@@ -264,6 +262,14 @@ fn with_volume(old: &str, new: &str) -> String {
         "test setup: `{old}` must start one line"
     );
     format!("{VALID}{}", lines.join("\n"))
+}
+
+fn with_volume(old: &str, new: &str) -> String {
+    let volume = "\n[[volume]]\ncenter = [0.0, 1.5, 0.0]\nradius = 1.0\n\
+                  scattering = [0.5, 0.5, 0.5]\nabsorption = 0.1\n\
+                  [volume.displacement]\namplitude = 0.3\nfrequency = 2.0\n\
+                  [volume.motion]\nvelocity = [1.0, 0.0, 0.0]\nperiod_s = 4.0\n";
+    replace_line(volume, old, new)
 }
 
 #[test]
@@ -346,23 +352,7 @@ fn with_emitter(old: &str, new: &str) -> String {
                    spread = 0.2\nbuoyancy = 0.3\nwind = [0.5, 0.0, 0.0]\ngrowth = 0.2\n\
                    falloff_u = 0.4\nscattering = [2.0, 2.0, 2.0]\nabsorption = 0.5\n\
                    g = 0.3\nmax_particles = 500\n";
-    let mut hits = 0;
-    let lines: Vec<&str> = emitter
-        .lines()
-        .map(|line| {
-            if !old.is_empty() && line.starts_with(old) {
-                hits += 1;
-                new
-            } else {
-                line
-            }
-        })
-        .collect();
-    assert!(
-        old.is_empty() || hits == 1,
-        "test setup: `{old}` must start one line"
-    );
-    format!("{VALID}{}", lines.join("\n"))
+    replace_line(emitter, old, new)
 }
 
 #[test]
