@@ -48,7 +48,8 @@ struct Frame {
     layer_first: u32,
     // u32 words per node: 1 (density) or 4 (σs.rgb, σt, emission.rgb, g·mean(σs), f16).
     layer_node_words: u32,
-    _layer_pad: u32,
+    // Live smoke particles in `particles` this frame.
+    particle_count: u32,
 }
 
 // Frame.flags
@@ -142,6 +143,19 @@ struct Medium {
     _pad4: u32,
 }
 
+// One live smoke particle (issue 15; ParticleGpu in src/render/gpu_types.rs): 001 Eq. 9's
+// Gaussian, σ(l) = σ_centre · exp(−50 l²/u²), with its emitter's coefficients at the centre.
+struct Particle {
+    centre: vec3f,
+    falloff_u: f32,   // u, metres (0: zero size, extinguishes nothing)
+    scattering: vec3f, // σs at the centre, per channel, m⁻¹
+    absorption: f32,  // σa at the centre, m⁻¹
+    g: f32,
+    index: u32,       // birth order within its emitter
+    emitter: u32,
+    _pad: u32,
+}
+
 @group(0) @binding(0) var<storage, read> frame: Frame;
 @group(0) @binding(1) var<storage, read> views: array<View>;
 @group(0) @binding(2) var<storage, read> lights: array<Light>;
@@ -166,6 +180,8 @@ struct Medium {
 @group(0) @binding(9) var<storage, read_write> layer_table: array<u32>;
 @group(0) @binding(10) var<storage, read_write> layer_pool: array<u32>;
 @group(0) @binding(11) var<storage, read_write> layer_slots: array<atomic<u32>>;
+// The live smoke particles of every emitter, `frame.particle_count` of them (issue 15).
+@group(0) @binding(12) var<storage, read> particles: array<Particle>;
 
 // Light i's transmittance volume: dims.x·dims.y columns of dims.z nodes `spacing` apart,
 // node (x, y, k) at media_t[offset + x + dims.x·(y + dims.y·k)]. A directional light's

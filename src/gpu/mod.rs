@@ -5,7 +5,7 @@ use wgpu::util::DeviceExt as _;
 
 /// Storage buffers a compute stage binds at most: the scene's group 0 (12) and the
 /// stage's own group (6).
-const STORAGE_BUFFERS_NEEDED: u32 = 18;
+const STORAGE_BUFFERS_NEEDED: u32 = 19;
 
 /// The wgpu device and queue fogcast renders with, and what the adapter can do.
 pub struct GpuContext {

@@ -67,7 +67,8 @@ pub(crate) struct FrameGpu {
     pub layer_stamp: u32,
     pub layer_first: u32,
     pub layer_node_words: u32,
-    pub _layer_pad: u32,
+    /// Live smoke particles in `particles` (group 0, binding 12) this frame.
+    pub particle_count: u32,
 }
 
 #[repr(C)]
@@ -220,3 +221,24 @@ const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);
 const _: () = assert!(std::mem::size_of::<LightMediaGpu>() == 48);
+
+/// One live smoke particle (issue 15; `Particle` in common.wgsl): a Gaussian blob of 001
+/// Eq. 9, `σ(l) = σ_centre e^{−50 l²/u²}`, with its emitter's coefficients at the centre.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub(crate) struct ParticleGpu {
+    pub centre: [f32; 3],
+    /// Falloff distance `u`, metres (0: a particle of zero size, which does nothing).
+    pub falloff_u: f32,
+    /// σs at the centre, per channel, m⁻¹.
+    pub scattering: [f32; 3],
+    /// σa at the centre, m⁻¹.
+    pub absorption: f32,
+    /// Henyey-Greenstein asymmetry.
+    pub g: f32,
+    /// Birth order within its emitter (ties in sorts and AVSM insertion).
+    pub index: u32,
+    /// Which `[[emitter]]` it came from.
+    pub emitter: u32,
+    pub _pad: u32,
+}

@@ -1,6 +1,8 @@
 //! Scene data on the GPU, shared by every stage (bind group 0) and the raster.
 
-use super::gpu_types::{FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ViewGpu, COUNTERS};
+use super::gpu_types::{
+    FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ParticleGpu, ViewGpu, COUNTERS,
+};
 use super::media_layer::{LayerBuffers, LayerPlan};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
@@ -111,6 +113,9 @@ pub(crate) struct SceneGpu {
     light_media: wgpu::Buffer,
     /// The world media layer's table, pool and slots (media_layer.rs).
     pub layer: LayerBuffers,
+    /// The live smoke particles (issue 15), `particle_capacity` slots.
+    pub particles: wgpu::Buffer,
+    pub particle_capacity: u32,
     /// Bumped whenever a buffer of group 0 is reallocated: bind groups made before
     /// must be made again.
     pub generation: u32,
@@ -249,7 +254,7 @@ impl SceneGpu {
             "scene",
             &[
                 Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite,
-                ReadWrite, ReadWrite,
+                ReadWrite, ReadWrite, Read,
             ],
         );
 
@@ -281,6 +286,15 @@ impl SceneGpu {
         if let Some(l) = layer {
             memory.push(("media_layer", l.bytes()));
         }
+        let particle_capacity = particle_capacity(scene);
+        let particles = ctx.storage(
+            "smoke particles",
+            u64::from(particle_capacity.max(1)) * std::mem::size_of::<ParticleGpu>() as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
+        if particle_capacity > 0 {
+            memory.push(("smoke_particles", particles.size()));
+        }
         let bind_group = ctx.bind_buffers(
             "scene",
             &layout,
@@ -297,10 +311,13 @@ impl SceneGpu {
                 &layer_buffers.table,
                 &layer_buffers.pool,
                 &layer_buffers.slots,
+                &particles,
             ],
         );
         Ok(SceneGpu {
             layer: layer_buffers,
+            particles,
+            particle_capacity,
             generation: 0,
             frame,
             views,
@@ -382,10 +399,40 @@ impl SceneGpu {
                 &self.layer.table,
                 &self.layer.pool,
                 &self.layer.slots,
+                &self.particles,
             ],
         )
     }
+
+    /// Writes this frame's live particles (at most `particle_capacity`; the newest of
+    /// each emitter are kept first) and returns how many went in.
+    pub(crate) fn write_particles(&self, ctx: &GpuContext, particles: &[ParticleGpu]) -> u32 {
+        let n = particles.len().min(self.particle_capacity as usize);
+        if n > 0 {
+            ctx.queue
+                .write_buffer(&self.particles, 0, bytemuck::cast_slice(&particles[..n]));
+        }
+        n as u32
+    }
 }
+
+/// The most particles the scene's emitters can have alive at once: per emitter the
+/// smaller of its cap and its steady state `rate × lifetime` (plus one born on the
+/// instant), capped at [`MAX_PARTICLES`] in all.
+pub(crate) fn particle_capacity(scene: &Scene) -> u32 {
+    let total: u64 = scene
+        .emitters
+        .iter()
+        .map(|e| {
+            let steady = (f64::from(e.rate_per_s) * f64::from(e.lifetime_s)).ceil() as u64 + 1;
+            steady.min(u64::from(e.max_particles))
+        })
+        .sum();
+    total.min(u64::from(MAX_PARTICLES)) as u32
+}
+
+/// The most smoke particles on the GPU at once, over every emitter (48 bytes each).
+pub(crate) const MAX_PARTICLES: u32 = 1 << 16;
 
 #[cfg(test)]
 mod tests {

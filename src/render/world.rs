@@ -50,6 +50,29 @@ impl Lookup {
     }
 }
 
+/// Every emitter's live particles at scene time `time_s` (the CPU twin,
+/// `smoke::emitter::particles_at`), emitter by emitter, oldest first.
+pub(crate) fn smoke_particles(scene: &Scene, time_s: f32) -> Vec<ParticleGpu> {
+    let mut out = Vec::new();
+    for (k, e) in scene.emitters.iter().enumerate() {
+        out.extend(
+            crate::smoke::emitter::particles_at(e, f64::from(time_s))
+                .iter()
+                .map(|p| ParticleGpu {
+                    centre: p.centre.as_vec3().to_array(),
+                    falloff_u: p.falloff_u_m as f32,
+                    scattering: e.scattering,
+                    absorption: e.absorption,
+                    g: e.g,
+                    index: p.index as u32,
+                    emitter: k as u32,
+                    _pad: 0,
+                }),
+        );
+    }
+    out
+}
+
 /// The scene and every view-independent structure, one per server or tool run.
 pub struct World {
     pub(crate) ctx: Arc<GpuContext>,
@@ -188,6 +211,9 @@ impl World {
             }
         }
         self.movers_time = Some(time_s);
+        let particle_count = self
+            .gpu
+            .write_particles(&self.ctx, &smoke_particles(scene, time_s));
         let mut flags = Lookup::of(s).flags();
         if s.parity {
             flags |= FLAG_PARITY;
@@ -254,7 +280,7 @@ impl World {
             layer_stamp: layer.as_ref().map_or(0, |(s, _)| *s),
             layer_first: layer.as_ref().map_or(0, |(_, p)| p.first),
             layer_node_words: layer.as_ref().map_or(1, |(_, p)| p.node_words()),
-            _layer_pad: 0,
+            particle_count,
         })
     }
 
