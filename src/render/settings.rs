@@ -215,6 +215,16 @@ settings! {
     /// At most 32 steps per medium; homogeneous media are integrated exactly.
     #[serde(default = "default_media_step_m")]
     media_step_m: f32 = default_media_step_m(), was "media_step";
+
+    /// Nodes per texel of the smoke's adaptive volumetric shadow maps (seed 002): 4, 8 or
+    /// 16. More nodes follow the smoke's transmittance curve more closely (issue 15).
+    #[serde(default = "default_avsm_nodes")]
+    avsm_nodes: u32 = default_avsm_nodes();
+
+    /// Simpson steps of a smoke particle's in-scattering along one pixel's interval
+    /// (seed 001 §3.10; even, 2..=64). The optical depth is exact whatever this is.
+    #[serde(default = "default_smoke_simpson_steps")]
+    smoke_simpson_steps: u32 = default_smoke_simpson_steps();
 }
 
 // What reports from before these settings existed read as (and their defaults).
@@ -224,6 +234,14 @@ fn default_transmittance_voxel_m() -> f32 {
 
 fn default_media_step_m() -> f32 {
     0.5
+}
+
+fn default_avsm_nodes() -> u32 {
+    8
+}
+
+fn default_smoke_simpson_steps() -> u32 {
+    8
 }
 
 /// One setting, as `settings!` defines it.
@@ -554,6 +572,16 @@ impl Settings {
                 || (self.transmittance_voxel_m.is_finite() && self.transmittance_voxel_m >= 0.01),
             "transmittance_voxel_m={}: must be 0 (march per sample) or at least 0.01 m",
             self.transmittance_voxel_m
+        );
+        anyhow::ensure!(
+            crate::smoke::avsm::NODE_COUNTS.contains(&(self.avsm_nodes as usize)),
+            "avsm_nodes={}: must be 4, 8 or 16",
+            self.avsm_nodes
+        );
+        anyhow::ensure!(
+            self.smoke_simpson_steps % 2 == 0 && (2..=64).contains(&self.smoke_simpson_steps),
+            "smoke_simpson_steps={}: must be even, 2..=64",
+            self.smoke_simpson_steps
         );
         anyhow::ensure!(
             self.media_step_m.is_finite() && self.media_step_m >= 0.01,
