@@ -225,8 +225,9 @@ const _: () = assert!(std::mem::size_of::<LightMediaGpu>() == 48);
 /// One live smoke particle (issue 15; `Particle` in common.wgsl): a Gaussian blob of 001
 /// Eq. 9, `σ(l) = σ_centre e^{−50 l²/u²}`, with its emitter's coefficients at the centre.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
-pub(crate) struct ParticleGpu {
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct ParticleGpu {
+    /// Centre, metres (render space).
     pub centre: [f32; 3],
     /// Falloff distance `u`, metres (0: a particle of zero size, which does nothing).
     pub falloff_u: f32,
@@ -240,5 +241,6 @@ pub(crate) struct ParticleGpu {
     pub index: u32,
     /// Which `[[emitter]]` it came from.
     pub emitter: u32,
+    /// Padding to 48 bytes.
     pub _pad: u32,
 }

@@ -24,6 +24,7 @@ mod settings;
 mod shadow_frustum;
 mod shadow_maps;
 mod shared_grid;
+mod smoke_particles;
 mod stage;
 mod stats;
 mod target;
@@ -32,9 +33,11 @@ mod viewer_volumes;
 mod volume_integration;
 mod world;
 
+pub use gpu_types::ParticleGpu;
 pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub use settings::{Mode, Settings};
 pub use shared_grid::{GridUpdate, SharedShadowGrid};
+pub use smoke_particles::cpu_particles;
 pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
 pub use target::{FrameOutput, FrameTarget, TargetView, TargetsOutput};
@@ -236,6 +239,9 @@ impl Renderer {
         f.each_set(Stage::GBuffer, |e, s| {
             stages.gbuffer.add_passes(&ctx, e, &world.gpu, s, ts)
         });
+        f.world(Stage::SmokeParticles, |e, _| {
+            world.add_smoke_particles(e, ts)
+        });
         f.world(Stage::ShadowMaps, |e, _| {
             world.add_shadow_maps(e, time_s, ts)
         });
@@ -421,6 +427,7 @@ fn dispatches(
         let groups: Vec<[u32; 3]> = match stage {
             Stage::GBuffer => Vec::new(),
             Stage::ShadowMaps => vec![[0, 0, 0]],
+            Stage::SmokeParticles => world.smoke.iter().map(|s| s.workgroups()).collect(),
             Stage::MediaLayer => world
                 .layer
                 .iter()

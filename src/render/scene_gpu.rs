@@ -403,32 +403,12 @@ impl SceneGpu {
             ],
         )
     }
-
-    /// Writes this frame's live particles (at most `particle_capacity`; the newest of
-    /// each emitter are kept first) and returns how many went in.
-    pub(crate) fn write_particles(&self, ctx: &GpuContext, particles: &[ParticleGpu]) -> u32 {
-        let n = particles.len().min(self.particle_capacity as usize);
-        if n > 0 {
-            ctx.queue
-                .write_buffer(&self.particles, 0, bytemuck::cast_slice(&particles[..n]));
-        }
-        n as u32
-    }
 }
 
-/// The most particles the scene's emitters can have alive at once: per emitter the
-/// smaller of its cap and its steady state `rate × lifetime` (plus one born on the
-/// instant), capped at [`MAX_PARTICLES`] in all.
+/// The most particles the scene's emitters can have alive at once on the GPU (the sum of
+/// their shares, src/render/smoke_particles.rs).
 pub(crate) fn particle_capacity(scene: &Scene) -> u32 {
-    let total: u64 = scene
-        .emitters
-        .iter()
-        .map(|e| {
-            let steady = (f64::from(e.rate_per_s) * f64::from(e.lifetime_s)).ceil() as u64 + 1;
-            steady.min(u64::from(e.max_particles))
-        })
-        .sum();
-    total.min(u64::from(MAX_PARTICLES)) as u32
+    super::smoke_particles::shares(scene).iter().sum()
 }
 
 /// The most smoke particles on the GPU at once, over every emitter (48 bytes each).

@@ -15,6 +15,8 @@ use std::cell::RefCell;
 pub enum Stage {
     /// Rasterise every viewer's G-buffer (one render pass per viewer).
     GBuffer,
+    /// Every emitter's live smoke particles placed for this frame (world, issue 15).
+    SmokeParticles,
     /// Shared shadow maps of the directional lights (world).
     ShadowMaps,
     /// The media filled into the sparse world media layer (world, paper 004).
@@ -48,8 +50,9 @@ pub enum Scope {
 
 impl Stage {
     /// Every stage, in the order the frame records them.
-    pub const ALL: [Stage; 10] = [
+    pub const ALL: [Stage; 11] = [
         Stage::GBuffer,
+        Stage::SmokeParticles,
         Stage::ShadowMaps,
         Stage::MediaLayer,
         Stage::MediaTransmittance,
@@ -65,6 +68,7 @@ impl Stage {
     pub const fn name(self) -> &'static str {
         match self {
             Stage::GBuffer => "gbuffer",
+            Stage::SmokeParticles => "smoke_particles",
             Stage::ShadowMaps => "shadow_maps",
             Stage::MediaLayer => "media_layer",
             Stage::MediaTransmittance => "media_transmittance",
@@ -101,6 +105,7 @@ impl Stage {
     pub const fn scope(self) -> Scope {
         match self {
             Stage::ShadowMaps
+            | Stage::SmokeParticles
             | Stage::MediaLayer
             | Stage::MediaTransmittance
             | Stage::SharedGrid => Scope::World,

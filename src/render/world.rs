@@ -10,6 +10,7 @@ use super::media_transmittance::{self, MediaTransmittance};
 use super::scene_gpu::SceneGpu;
 use super::shadow_maps::ShadowMaps;
 use super::shared_grid::{GridUpdate, SharedShadowGrid};
+use super::smoke_particles::SmokeParticles;
 use super::{Mode, Settings, Timestamps};
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, Scene};
@@ -50,29 +51,6 @@ impl Lookup {
     }
 }
 
-/// Every emitter's live particles at scene time `time_s` (the CPU twin,
-/// `smoke::emitter::particles_at`), emitter by emitter, oldest first.
-pub(crate) fn smoke_particles(scene: &Scene, time_s: f32) -> Vec<ParticleGpu> {
-    let mut out = Vec::new();
-    for (k, e) in scene.emitters.iter().enumerate() {
-        out.extend(
-            crate::smoke::emitter::particles_at(e, f64::from(time_s))
-                .iter()
-                .map(|p| ParticleGpu {
-                    centre: p.centre.as_vec3().to_array(),
-                    falloff_u: p.falloff_u_m as f32,
-                    scattering: e.scattering,
-                    absorption: e.absorption,
-                    g: e.g,
-                    index: p.index as u32,
-                    emitter: k as u32,
-                    _pad: 0,
-                }),
-        );
-    }
-    out
-}
-
 /// The scene and every view-independent structure, one per server or tool run.
 pub struct World {
     pub(crate) ctx: Arc<GpuContext>,
@@ -84,6 +62,10 @@ pub struct World {
     pub(crate) transmittance: MediaTransmittance,
     /// The world media layer (`shared` with costly media; media_layer.rs).
     pub(crate) layer: Option<MediaLayer>,
+    /// The smoke particles' simulation pass (scenes with emitters).
+    pub(crate) smoke: Option<SmokeParticles>,
+    /// Smoke particles alive this frame (`Frame.particle_count`).
+    pub(crate) particle_count: u32,
     /// The lights as last uploaded (animated lights move; a change marks the light dirty).
     lights_uploaded: Option<Vec<LightGpu>>,
     /// Scene time of the movers as last uploaded.
@@ -141,6 +123,8 @@ impl World {
             ),
             transmittance: MediaTransmittance::new(&ctx, &gpu.layout, &scene, &light_media),
             layer: layer_plan.map(|p| MediaLayer::new(&ctx, &gpu.layout, p)),
+            smoke: SmokeParticles::new(&ctx, &scene, &gpu.particles),
+            particle_count: 0,
             triangles: bvh.triangle_count()
                 + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
             gpu,
@@ -212,8 +196,10 @@ impl World {
         }
         self.movers_time = Some(time_s);
         let particle_count = self
-            .gpu
-            .write_particles(&self.ctx, &smoke_particles(scene, time_s));
+            .smoke
+            .as_mut()
+            .map_or(0, |sm| sm.prepare(&self.ctx, scene, time_s));
+        self.particle_count = particle_count;
         let mut flags = Lookup::of(s).flags();
         if s.parity {
             flags |= FLAG_PARITY;
@@ -308,6 +294,24 @@ impl World {
         let (ctx, scene, gpu) = (&self.ctx, &self.scene, &self.gpu);
         self.shadow_maps
             .add_passes(ctx, enc, scene, gpu, time_s, ts)
+    }
+
+    /// Records the smoke particles' placement (when any is alive).
+    pub(crate) fn add_smoke_particles(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        ts: &Timestamps,
+    ) -> bool {
+        self.smoke.as_ref().is_some_and(|s| s.add_pass(enc, ts))
+    }
+
+    /// Reads the last frame's smoke particles back (for tests and tools; the CPU twin is
+    /// [`super::cpu_particles`]).
+    pub fn read_particles(&self) -> anyhow::Result<Vec<ParticleGpu>> {
+        let bytes = self.ctx.read_buffer(&self.gpu.particles)?;
+        let all: &[ParticleGpu] = bytemuck::cast_slice(&bytes);
+        let n = self.particle_count.min(self.gpu.particle_capacity) as usize;
+        Ok(all[..n].to_vec())
     }
 
     /// Records the world media layer's mark and fill (every frame it exists: new views

@@ -2,7 +2,9 @@
 //! pure function of time, so that `truth`, `bench`, the server and the GPU pass agree.
 //!
 //! Particle `i` (0, 1, 2, …) is born at `t_i = i / rate` at a point of the emitter's shape
-//! and with a spread direction both drawn from a hash of `(seed, i)` (SplitMix64), and at
+//! and with a spread direction both drawn from a hash of `(seed, i mod 2³²)` (Wellons'
+//! `lowbias32`, 32-bit so that the GPU pass, shaders/smoke_particles.wgsl, draws the very
+//! same numbers: each draw is 24 bits, exact in f32 and f64), and at
 //! age `a = t − t_i` it is at
 //!
 //! `p(a) = p_0 + (v + v_spread,i + wind) a + ½ buoyancy ŷ a²`, with falloff `u(a) = u_0 +
@@ -30,10 +32,21 @@ pub struct Particle {
 /// The live particles of `emitter` at `time_s` (seconds since the emitter started), oldest
 /// first. None before time 0.
 pub fn particles_at(emitter: &EmitterDesc, time_s: f64) -> Vec<Particle> {
+    let Some(live) = live_range(emitter, time_s) else {
+        return Vec::new();
+    };
+    let rate = f64::from(emitter.rate_per_s);
+    live.map(|i| particle(emitter, i, time_s - i as f64 / rate))
+        .collect()
+}
+
+/// The birth indices of the live particles of `emitter` at `time_s` (the newest
+/// `max_particles` of those born and not yet dead), `None` when there are none.
+pub fn live_range(emitter: &EmitterDesc, time_s: f64) -> Option<std::ops::RangeInclusive<u64>> {
     let rate = f64::from(emitter.rate_per_s);
     let lifetime_s = f64::from(emitter.lifetime_s);
     if !(time_s >= 0.0 && rate > 0.0 && lifetime_s > 0.0) || emitter.max_particles == 0 {
-        return Vec::new();
+        return None;
     }
     let birth_s = |i: u64| i as f64 / rate;
     // The newest particle born by now, and the oldest still alive (age < lifetime); the
@@ -53,18 +66,15 @@ pub fn particles_at(emitter: &EmitterDesc, time_s: f64) -> Vec<Particle> {
         oldest += 1;
     }
     if oldest > newest {
-        return Vec::new();
+        return None;
     }
     let cap = u64::from(emitter.max_particles);
-    let oldest = oldest.max((newest + 1).saturating_sub(cap));
-    (oldest..=newest)
-        .map(|i| particle(emitter, i, time_s - birth_s(i)))
-        .collect()
+    Some(oldest.max((newest + 1).saturating_sub(cap))..=newest)
 }
 
 /// Particle `i` at age `age_s`, closed form (module header).
-fn particle(e: &EmitterDesc, index: u64, age_s: f64) -> Particle {
-    let mut hash = Hash::new(u64::from(e.seed), index);
+pub fn particle(e: &EmitterDesc, index: u64, age_s: f64) -> Particle {
+    let mut hash = Hash::new(e.seed, index);
     let position = DVec3::from(e.position.map(f64::from));
     let radius = f64::from(e.radius);
     let birth = position
@@ -89,25 +99,32 @@ fn particle(e: &EmitterDesc, index: u64, age_s: f64) -> Particle {
     }
 }
 
-/// SplitMix64 seeded by `(seed, index)`: a particle's random draws depend on nothing else.
-struct Hash(u64);
+/// Chris Wellons' `lowbias32` integer hash (`hash_u32` in shaders/smoke_particles.wgsl).
+pub fn lowbias32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^ (x >> 16)
+}
+
+/// A stream of draws seeded by `(seed, index mod 2³²)`: a particle's random draws depend
+/// on nothing else. Mirrored by `Draws` in shaders/smoke_particles.wgsl.
+struct Hash(u32);
 
 impl Hash {
-    fn new(seed: u64, index: u64) -> Self {
-        Self(seed.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+    fn new(seed: u32, index: u64) -> Self {
+        Self(lowbias32(index as u32 ^ lowbias32(seed)))
     }
 
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+    fn next(&mut self) -> u32 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9);
+        lowbias32(self.0)
     }
 
-    /// Uniform in [0, 1).
+    /// Uniform in [0, 1), 24 bits (exact in f32).
     fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+        f64::from(self.next() >> 8) / f64::from(1u32 << 24)
     }
 
     /// Uniform on the unit sphere.
