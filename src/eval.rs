@@ -40,6 +40,10 @@ pub struct EvalConfig {
     pub transmittance_voxels_m: Vec<f32>,
     /// Scene time of the evaluated frame, seconds.
     pub time_s: f32,
+    /// AVSM node counts to sweep on smoke scenes (issue 15).
+    pub avsm_nodes: Vec<u32>,
+    /// Simpson steps of the smoke's in-scattering to sweep on smoke scenes.
+    pub smoke_simpson_steps: Vec<u32>,
     /// Output folder.
     pub out: PathBuf,
     /// The command line, recorded in the report.
@@ -187,8 +191,10 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
     );
     std::fs::create_dir_all(&cfg.out)?;
     let scene = Arc::new(Scene::load(&cfg.scene)?);
+    // The frame without fog or smoke: what the fog-region error masks are made from.
     let mut bare = (*scene).clone();
     bare.media.clear();
+    bare.emitters.clear();
     let bare = Arc::new(bare);
     let bvh = Bvh::build(&scene.mesh)?;
     let ctx = Arc::new(GpuContext::new()?);
@@ -293,6 +299,33 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
                     ..Settings::default()
                 }
             });
+        }
+    }
+    // Smoke (issue 15): the shadow maps' node count and the interval's Simpson steps, one
+    // at a time from `shared`'s defaults (time against error: eval's plots).
+    if !scene.emitters.is_empty() {
+        let defaults = Settings {
+            mode: Mode::Shared,
+            voxel_size_m: base.voxel_size_m,
+            ..Settings::default()
+        };
+        let mut sweep: Vec<Settings> = Vec::new();
+        for &avsm_nodes in &cfg.avsm_nodes {
+            sweep.push(Settings {
+                avsm_nodes,
+                ..defaults
+            });
+        }
+        for &smoke_simpson_steps in &cfg.smoke_simpson_steps {
+            sweep.push(Settings {
+                smoke_simpson_steps,
+                ..defaults
+            });
+        }
+        for s in sweep {
+            if !variants.contains(&s) {
+                variants.push(s);
+            }
         }
     }
     for &depth_curve in &cfg.depth_curves {

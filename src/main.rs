@@ -74,6 +74,13 @@ struct EvalArgs {
     /// Exponential depth-slice curves to compare besides the default (empty: none).
     #[arg(long, value_delimiter = ',', default_value = "2,6")]
     depth_curves: Vec<f32>,
+    /// Smoke scenes only: AVSM node counts to sweep (4, 8, 16) on top of `shared`'s
+    /// defaults.
+    #[arg(long, value_delimiter = ',', default_value = "4,8,16")]
+    avsm_nodes: Vec<u32>,
+    /// Smoke scenes only: Simpson steps of the particles' in-scattering to sweep.
+    #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
+    smoke_simpson_steps: Vec<u32>,
     /// Output folder (eval.md, eval.csv, eval.json, plots, sample images).
     #[arg(long, default_value = "out/eval")]
     out: PathBuf,
@@ -332,6 +339,8 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         transmittance_voxels_m: a.transmittance_voxels,
         time_s: a.time,
         depth_curves: a.depth_curves,
+        avsm_nodes: a.avsm_nodes,
+        smoke_simpson_steps: a.smoke_simpson_steps,
         out: a.out.clone(),
         command,
     };
