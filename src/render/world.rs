@@ -10,6 +10,7 @@ use super::media_transmittance::{self, MediaTransmittance};
 use super::scene_gpu::SceneGpu;
 use super::shadow_maps::ShadowMaps;
 use super::shared_grid::{GridUpdate, SharedShadowGrid};
+use super::smoke_shadows::{self, SmokeShadows};
 use super::{Mode, Settings, Timestamps};
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, Scene};
@@ -84,6 +85,8 @@ pub struct World {
     pub(crate) transmittance: MediaTransmittance,
     /// The world media layer (`shared` with costly media; media_layer.rs).
     pub(crate) layer: Option<MediaLayer>,
+    /// The smoke's adaptive volumetric shadow maps (smoke_shadows.rs).
+    pub(crate) smoke: SmokeShadows,
     /// The lights as last uploaded (animated lights move; a change marks the light dirty).
     lights_uploaded: Option<Vec<LightGpu>>,
     /// Scene time of the movers as last uploaded.
@@ -118,7 +121,14 @@ impl World {
         } else {
             None
         };
-        let gpu = SceneGpu::new(&ctx, &scene, bvh, &light_media, layer_plan.as_ref())?;
+        let gpu = SceneGpu::new(
+            &ctx,
+            &scene,
+            bvh,
+            &light_media,
+            layer_plan.as_ref(),
+            smoke_shadows::node_count(&scene, &settings),
+        )?;
         let grid = match scene.media_bounds() {
             Some(bounds) if shared && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
                 &ctx,
@@ -141,6 +151,7 @@ impl World {
             ),
             transmittance: MediaTransmittance::new(&ctx, &gpu.layout, &scene, &light_media),
             layer: layer_plan.map(|p| MediaLayer::new(&ctx, &gpu.layout, p)),
+            smoke: SmokeShadows::new(&ctx, &gpu.layout, &scene, &settings),
             triangles: bvh.triangle_count()
                 + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
             gpu,
@@ -163,6 +174,7 @@ impl World {
         self.movers_time = None;
         self.shadow_maps.invalidate();
         self.transmittance.invalidate();
+        self.smoke.invalidate();
         if let Some(l) = &mut self.layer {
             l.invalidate();
         }
@@ -211,9 +223,15 @@ impl World {
             }
         }
         self.movers_time = Some(time_s);
-        let particle_count = self
-            .gpu
-            .write_particles(&self.ctx, &smoke_particles(scene, time_s));
+        let particles = smoke_particles(scene, time_s);
+        let particle_count = self.gpu.write_particles(&self.ctx, &particles);
+        self.smoke.prepare(
+            &self.ctx,
+            &self.gpu,
+            &particles[..particle_count as usize],
+            self.lights_uploaded.as_deref().unwrap_or_default(),
+            dirty_lights,
+        );
         let mut flags = Lookup::of(s).flags();
         if s.parity {
             flags |= FLAG_PARITY;
@@ -339,6 +357,11 @@ impl World {
             l.regrow(plan);
         }
         Ok(())
+    }
+
+    /// Records the smoke's shadow maps (when the particles or a light changed).
+    pub(crate) fn add_smoke_shadows(&self, enc: &mut wgpu::CommandEncoder, ts: &Timestamps) -> bool {
+        self.smoke.add_pass(enc, &self.gpu.bind_group, ts)
     }
 
     /// Records the media transmittance toward the lights whose volume is stale.
