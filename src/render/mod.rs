@@ -181,7 +181,10 @@ impl Renderer {
     /// `smoke_transmittance(light, p)` (common.wgsl, what every stage multiplies into a
     /// light's transmittance) at every `(light, p)`, on the GPU, with the last frame's
     /// particles and maps (for tests).
-    pub fn probe_smoke_transmittance(&self, points: &[(u32, glam::Vec3)]) -> anyhow::Result<Vec<f32>> {
+    pub fn probe_smoke_transmittance(
+        &self,
+        points: &[(u32, glam::Vec3)],
+    ) -> anyhow::Result<Vec<f32>> {
         let w = &self.world;
         w.smoke.probe(&w.ctx, &w.gpu.bind_group, points)
     }

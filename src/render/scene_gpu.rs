@@ -300,17 +300,18 @@ impl SceneGpu {
         if particle_capacity > 0 {
             memory.push(("smoke_particles", particles.size()));
         }
-        let smoke_nodes_buf = ctx.storage("smoke shadow nodes", smoke_nodes.max(1) * 8, wgpu::BufferUsages::empty())?;
+        let smoke_nodes_buf = ctx.storage(
+            "smoke shadow nodes",
+            smoke_nodes.max(1) * 8,
+            wgpu::BufferUsages::empty(),
+        )?;
         let smoke_maps = ctx.storage(
             "smoke shadow maps",
             scene.lights.len().max(1) as u64 * std::mem::size_of::<SmokeMapGpu>() as u64,
             wgpu::BufferUsages::empty(),
         )?;
         if smoke_nodes > 0 {
-            memory.push((
-                "smoke_shadows",
-                smoke_nodes_buf.size() + smoke_maps.size(),
-            ));
+            memory.push(("smoke_shadows", smoke_nodes_buf.size() + smoke_maps.size()));
         }
         let bind_group = ctx.bind_buffers(
             "scene",

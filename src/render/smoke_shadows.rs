@@ -45,9 +45,7 @@ pub(crate) fn node_count(scene: &Scene, settings: &Settings) -> u64 {
     if super::scene_gpu::particle_capacity(scene) == 0 || scene.lights.is_empty() {
         return 0;
     }
-    scene.lights.len() as u64
-        * u64::from(settings.avsm_px).pow(2)
-        * u64::from(settings.avsm_nodes)
+    scene.lights.len() as u64 * u64::from(settings.avsm_px).pow(2) * u64::from(settings.avsm_nodes)
 }
 
 /// How a light's smoke shadow map projects.
@@ -217,8 +215,7 @@ impl SmokeShadows {
             "smoke_avsm",
             include_str!("../../shaders/smoke_avsm.wgsl"),
         );
-        let probe_layout =
-            ctx.storage_layout("smoke probe", &[Access::Read, Access::ReadWrite]);
+        let probe_layout = ctx.storage_layout("smoke probe", &[Access::Read, Access::ReadWrite]);
         SmokeShadows {
             pipeline: ctx.compute_pipeline("smoke_avsm", &module, &[scene_layout]),
             probe: ctx.compute_pipeline_entry(
@@ -416,7 +413,10 @@ mod tests {
 
     #[test]
     fn maps_fit_the_smoke_and_close_lights_get_none() {
-        let ps = [particle([0.0, 2.0, 0.0], 0.5), particle([1.0, 2.0, 0.0], 0.5)];
+        let ps = [
+            particle([0.0, 2.0, 0.0], 0.5),
+            particle([1.0, 2.0, 0.0], 0.5),
+        ];
         let lights = [
             light(0, [0.0; 3], [0.0, -1.0, 0.0]),
             light(1, [0.5, 10.0, 0.0], [0.0, -1.0, 0.0]),

@@ -360,7 +360,11 @@ impl World {
     }
 
     /// Records the smoke's shadow maps (when the particles or a light changed).
-    pub(crate) fn add_smoke_shadows(&self, enc: &mut wgpu::CommandEncoder, ts: &Timestamps) -> bool {
+    pub(crate) fn add_smoke_shadows(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        ts: &Timestamps,
+    ) -> bool {
         self.smoke.add_pass(enc, &self.gpu.bind_group, ts)
     }
 
