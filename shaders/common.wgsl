@@ -182,6 +182,12 @@ struct Particle {
 @group(0) @binding(11) var<storage, read_write> layer_slots: array<atomic<u32>>;
 // The live smoke particles of every emitter, `frame.particle_count` of them (issue 15).
 @group(0) @binding(12) var<storage, read> particles: array<Particle>;
+// The smoke's adaptive volumetric shadow maps (seed 002; src/render/smoke_shadows.rs,
+// shaders/smoke_avsm.wgsl): per light a map of px² texels, each a curve of `nodes`
+// (depth, transmittance) nodes at smoke_nodes[offset + (x + px·y)·nodes + k], filled once
+// per frame for every viewer (`smoke_transmittance` reads them).
+@group(0) @binding(13) var<storage, read_write> smoke_nodes: array<vec2f>;
+@group(0) @binding(14) var<storage, read> smoke_maps: array<SmokeMap>;
 
 // Light i's transmittance volume: dims.x·dims.y columns of dims.z nodes `spacing` apart,
 // node (x, y, k) at media_t[offset + x + dims.x·(y + dims.y·k)]. A directional light's
@@ -199,6 +205,32 @@ struct LightMedia {
     nodes: u32,       // 0: no volume (transmittance is marched per sample)
     near: f32,
     tan_half: f32,
+}
+
+// SmokeMap.kind
+const SMOKE_MAP_NONE: u32 = 0u;        // no map this frame: the smoke casts no shadow
+const SMOKE_MAP_ORTHO: u32 = 1u;       // directional light: parallel rays along `axis`
+const SMOKE_MAP_PERSPECTIVE: u32 = 2u; // point or spot light: rays from `origin`
+
+// One light's smoke shadow map (SmokeMapGpu in src/render/gpu_types.rs), fitted to the
+// particles' bounding sphere. Orthographic: texel (x, y)'s ray starts at origin + (ex·e.x
+// + ey·e.y)·extent, e ∈ (−1, 1)² the texel centre, and runs along `axis`; depth is the
+// distance from the plane through `origin` across `axis`. Perspective: the ray from the
+// light `origin` along normalize(axis + (ex·e.x + ey·e.y)·extent) (extent: tangent of the
+// half angle); depth is the distance from the light.
+struct SmokeMap {
+    origin: vec3f,
+    kind: u32,
+    axis: vec3f,
+    extent: f32,
+    ex: vec3f,
+    offset: u32,      // first node of the map in smoke_nodes
+    ey: vec3f,
+    px: u32,          // texels a side
+    nodes: u32,       // nodes per texel (the `avsm_nodes` setting)
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // counters[]
@@ -750,9 +782,16 @@ fn lookup_media_t(l: Light, v: LightMedia, p: vec3f) -> f32 {
     return exp(-acc);
 }
 
+// Transmittance between p and light `li`: the media's (`media_transmittance`) times the
+// smoke's (`smoke_transmittance`). Froxel lighting (near field and beyond), the smoke's own
+// shading and, through `surface_transmittance`, the surfaces all read it.
+fn light_transmittance(li: u32, p: vec3f) -> f32 {
+    return media_transmittance(li, p) * smoke_transmittance(li, p);
+}
+
 // Transmittance of the media between p and light `li`, T = exp(−∫σt): from the shared
 // volume where there is one, else by marching the shadow ray (`reference`).
-fn light_transmittance(li: u32, p: vec3f) -> f32 {
+fn media_transmittance(li: u32, p: vec3f) -> f32 {
     if frame.medium_count == 0u {
         return 1.0;
     }
@@ -769,6 +808,8 @@ fn light_transmittance(li: u32, p: vec3f) -> f32 {
 // nodes outside and comes out too low (the floor too bright by ~σt·spacing). The volume
 // is read a few spacings towards the light instead, where every node around the point
 // is inside, and the rest of the way, that short segment, is integrated exactly.
+// The smoke's transmittance (`smoke_transmittance`) multiplies it as it does
+// `light_transmittance`.
 fn surface_transmittance(li: u32, p: vec3f) -> f32 {
     if frame.medium_count == 0u || (frame.flags & FLAG_MEDIA_T) == 0u || light_media[li].nodes == 0u {
         return light_transmittance(li, p);
@@ -777,7 +818,8 @@ fn surface_transmittance(li: u32, p: vec3f) -> f32 {
     let tl = to_light(l, p);
     let back = min(3.0 * light_media[li].spacing, tl.w);
     let q = p + tl.xyz * back;
-    return lookup_media_t(l, light_media[li], q) * exp(-media_optical_depth(p, tl.xyz, back));
+    let media = lookup_media_t(l, light_media[li], q) * exp(-media_optical_depth(p, tl.xyz, back));
+    return media * smoke_transmittance(li, p);
 }
 
 // Henyey-Greenstein; cos_theta between the light's travel direction and the scattered one.
@@ -811,4 +853,103 @@ fn pack_rgba16(v: vec4f) -> vec2u {
 
 fn unpack_rgba16(p: vec2u) -> vec4f {
     return vec4f(unpack2x16float(p.x), unpack2x16float(p.y));
+}
+
+// ---- Smoke shadows: adaptive volumetric shadow maps (seed 002) ----------------------
+
+// Where p falls in smoke map m: texel-space coordinate (texel centres at integers), the
+// depth along the light ray, and whether the point is in the map's frustum at all.
+struct SmokeCoord {
+    texel: vec2f,
+    depth: f32,
+    inside: bool,
+}
+
+fn smoke_map_coord(m: SmokeMap, p: vec3f) -> SmokeCoord {
+    let d = p - m.origin;
+    var e: vec2f;
+    var depth: f32;
+    if m.kind == SMOKE_MAP_ORTHO {
+        e = vec2f(dot(d, m.ex), dot(d, m.ey)) / m.extent;
+        depth = dot(d, m.axis);
+    } else {
+        let z = dot(d, m.axis);
+        if z <= 0.0 {
+            return SmokeCoord(vec2f(0.0), 0.0, false);
+        }
+        e = vec2f(dot(d, m.ex), dot(d, m.ey)) / (z * m.extent);
+        depth = length(d);
+    }
+    let inside = all(abs(e) <= vec2f(1.0));
+    return SmokeCoord((e * 0.5 + 0.5) * f32(m.px) - 0.5, depth, inside);
+}
+
+// Texel xy's light ray in map m: its start and unit direction (depth = distance along it).
+struct SmokeRay {
+    start: vec3f,
+    dir: vec3f,
+}
+
+fn smoke_texel_ray(m: SmokeMap, xy: vec2u) -> SmokeRay {
+    let e = (vec2f(xy) + 0.5) / f32(m.px) * 2.0 - 1.0;
+    let across = m.ex * e.x + m.ey * e.y;
+    if m.kind == SMOKE_MAP_ORTHO {
+        return SmokeRay(m.origin + across * m.extent, m.axis);
+    }
+    return SmokeRay(m.origin, normalize(m.axis + across * m.extent));
+}
+
+// One texel's curve at `depth` (002 Eq. 2, as `TransmittanceCurve::transmittance_at`):
+// 1 in front of the first node, linear between nodes, the last value behind the last.
+// Unused nodes sit at SMOKE_FAR_DEPTH with the last node's value.
+fn smoke_curve_at(first: u32, count: u32, depth: f32) -> f32 {
+    let n0 = smoke_nodes[first];
+    if depth < n0.x {
+        return 1.0;
+    }
+    var l = n0;
+    for (var k = 1u; k < count; k++) {
+        let r = smoke_nodes[first + k];
+        if r.x > depth {
+            return l.y + (depth - l.x) * (r.y - l.y) / (r.x - l.x);
+        }
+        l = r;
+    }
+    return l.y;
+}
+
+// Depth of a curve's unused nodes.
+const SMOKE_FAR_DEPTH: f32 = 3.0e38;
+
+// Transmittance of the smoke between p and light `li` from its AVSM: the curves of the 4
+// texels around p, bilinearly (texels clamped at the map's edge, where the fitted map
+// holds no smoke); 1 outside the map, without particles, or for a light without a map.
+fn smoke_transmittance(li: u32, p: vec3f) -> f32 {
+    if frame.particle_count == 0u {
+        return 1.0;
+    }
+    let m = smoke_maps[li];
+    if m.kind == SMOKE_MAP_NONE {
+        return 1.0;
+    }
+    let c = smoke_map_coord(m, p);
+    if !c.inside {
+        return 1.0;
+    }
+    let top = m.px - 1u;
+    let g = clamp(c.texel, vec2f(0.0), vec2f(f32(top)));
+    let base = min(vec2u(floor(g)), vec2u(top));
+    let f = g - vec2f(base);
+    let hi = min(base + 1u, vec2u(top));
+    var acc = 0.0;
+    for (var k = 0u; k < 4u; k++) {
+        let o = vec2<bool>((k & 1u) != 0u, (k & 2u) != 0u);
+        let q = select(base, hi, o);
+        let w2 = select(1.0 - f, f, o);
+        let w = w2.x * w2.y;
+        if w > 0.0 {
+            acc += w * smoke_curve_at(m.offset + (q.x + m.px * q.y) * m.nodes, m.nodes, c.depth);
+        }
+    }
+    return acc;
 }

@@ -244,3 +244,32 @@ pub struct ParticleGpu {
     /// Padding to 48 bytes.
     pub _pad: u32,
 }
+
+/// `SmokeMap.kind` in common.wgsl: no map (the smoke casts no shadow for the light).
+pub(crate) const SMOKE_MAP_NONE: u32 = 0;
+/// An orthographic map (directional light).
+pub(crate) const SMOKE_MAP_ORTHO: u32 = 1;
+/// A perspective map (point or spot light).
+pub(crate) const SMOKE_MAP_PERSPECTIVE: u32 = 2;
+
+/// One light's smoke shadow map (`SmokeMap` in common.wgsl; smoke_shadows.rs).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub(crate) struct SmokeMapGpu {
+    pub origin: [f32; 3],
+    pub kind: u32,
+    pub axis: [f32; 3],
+    /// Orthographic: half-width of the map, metres; perspective: tangent of its half angle.
+    pub extent: f32,
+    pub ex: [f32; 3],
+    /// First node of the map in the node buffer.
+    pub offset: u32,
+    pub ey: [f32; 3],
+    /// Texels a side.
+    pub px: u32,
+    /// Nodes per texel.
+    pub nodes: u32,
+    pub _pad: [u32; 3],
+}
+
+const _: () = assert!(std::mem::size_of::<SmokeMapGpu>() == 80);

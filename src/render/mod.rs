@@ -25,6 +25,7 @@ mod shadow_frustum;
 mod shadow_maps;
 mod shared_grid;
 mod smoke_particles;
+mod smoke_shadows;
 mod stage;
 mod stats;
 mod target;
@@ -38,6 +39,7 @@ pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub use settings::{Mode, Settings};
 pub use shared_grid::{GridUpdate, SharedShadowGrid};
 pub use smoke_particles::cpu_particles;
+pub use smoke_shadows::{SmokeMapKind, SmokeShadowMap, MAX_CROSSINGS as SMOKE_MAX_CROSSINGS};
 pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
 pub use target::{FrameOutput, FrameTarget, TargetView, TargetsOutput};
@@ -173,6 +175,23 @@ impl Renderer {
         Ok(Some((words, touched)))
     }
 
+    /// Reads every light's smoke shadow map back as the last frame built it (None: no map
+    /// for that light; for tests and tools).
+    pub fn read_smoke_shadows(&self) -> anyhow::Result<Vec<Option<SmokeShadowMap>>> {
+        self.world.smoke_shadows.read(&self.world.ctx, &self.world.gpu)
+    }
+
+    /// `smoke_transmittance(light, p)` (common.wgsl, what every stage multiplies into a
+    /// light's transmittance) at every `(light, p)`, on the GPU, with the last frame's
+    /// particles and maps (for tests).
+    pub fn probe_smoke_transmittance(
+        &self,
+        points: &[(u32, glam::Vec3)],
+    ) -> anyhow::Result<Vec<f32>> {
+        let w = &self.world;
+        w.smoke_shadows.probe(&w.ctx, &w.gpu.bind_group, points)
+    }
+
     /// Reads the integrated froxel volume of the last frame's first view size back as f32
     /// `[r, g, b, transmittance]` (for tests and tools: NaN or inf here is hidden by the
     /// RGBA8 clamp of the image). Viewer `i`'s froxel `(x, y, slice)` is at
@@ -249,6 +268,7 @@ impl Renderer {
         f.world(Stage::MediaTransmittance, |e, _| {
             world.add_transmittance(e, &frame, ts)
         });
+        f.world(Stage::SmokeShadows, |e, _| world.add_smoke_shadows(e, ts));
         let (grid, maps, cull) = (
             world.grid(),
             &world.shadow_maps,
@@ -434,6 +454,7 @@ fn dispatches(
                 .flat_map(|l| [l.mark_workgroups(), l.fill_workgroups()])
                 .collect(),
             Stage::MediaTransmittance => vec![world.transmittance.workgroups()],
+            Stage::SmokeShadows => vec![world.smoke_shadows.workgroups()],
             Stage::SharedGrid => world.grid.iter().map(|g| g.workgroups()).collect(),
             Stage::GridRequests | Stage::FroxelLighting | Stage::VolumeIntegration => {
                 per_set(|g| g.columns).collect()

@@ -1,7 +1,7 @@
 //! Scene data on the GPU, shared by every stage (bind group 0) and the raster.
 
 use super::gpu_types::{
-    FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ParticleGpu, ViewGpu, COUNTERS,
+    FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ParticleGpu, SmokeMapGpu, ViewGpu, COUNTERS,
 };
 use super::media_layer::{LayerBuffers, LayerPlan};
 use crate::gpu::Access::{Read, ReadWrite};
@@ -116,6 +116,10 @@ pub(crate) struct SceneGpu {
     /// The live smoke particles (issue 15), `particle_capacity` slots.
     pub particles: wgpu::Buffer,
     pub particle_capacity: u32,
+    /// The smoke's shadow map nodes (`vec2f` each) and per-light headers
+    /// (smoke_shadows.rs): a single placeholder node without emitters or lights.
+    pub smoke_nodes: wgpu::Buffer,
+    pub smoke_maps: wgpu::Buffer,
     /// Bumped whenever a buffer of group 0 is reallocated: bind groups made before
     /// must be made again.
     pub generation: u32,
@@ -197,6 +201,7 @@ impl SceneGpu {
         bvh: &Bvh,
         light_media: &[LightMediaGpu],
         layer: Option<&LayerPlan>,
+        smoke_nodes: u64,
     ) -> anyhow::Result<SceneGpu> {
         let lights: Vec<LightGpu> = scene.lights.iter().map(LightGpu::from).collect();
         let media: Vec<MediumGpu> = scene
@@ -254,7 +259,7 @@ impl SceneGpu {
             "scene",
             &[
                 Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite,
-                ReadWrite, ReadWrite, Read,
+                ReadWrite, ReadWrite, Read, ReadWrite, Read,
             ],
         );
 
@@ -295,6 +300,19 @@ impl SceneGpu {
         if particle_capacity > 0 {
             memory.push(("smoke_particles", particles.size()));
         }
+        let smoke_nodes_buf = ctx.storage(
+            "smoke shadow nodes",
+            smoke_nodes.max(1) * 8,
+            wgpu::BufferUsages::empty(),
+        )?;
+        let smoke_maps = ctx.storage(
+            "smoke shadow maps",
+            scene.lights.len().max(1) as u64 * std::mem::size_of::<SmokeMapGpu>() as u64,
+            wgpu::BufferUsages::empty(),
+        )?;
+        if smoke_nodes > 0 {
+            memory.push(("smoke_shadows", smoke_nodes_buf.size() + smoke_maps.size()));
+        }
         let bind_group = ctx.bind_buffers(
             "scene",
             &layout,
@@ -312,12 +330,16 @@ impl SceneGpu {
                 &layer_buffers.pool,
                 &layer_buffers.slots,
                 &particles,
+                &smoke_nodes_buf,
+                &smoke_maps,
             ],
         );
         Ok(SceneGpu {
             layer: layer_buffers,
             particles,
             particle_capacity,
+            smoke_nodes: smoke_nodes_buf,
+            smoke_maps,
             generation: 0,
             frame,
             views,
@@ -400,6 +422,8 @@ impl SceneGpu {
                 &self.layer.pool,
                 &self.layer.slots,
                 &self.particles,
+                &self.smoke_nodes,
+                &self.smoke_maps,
             ],
         )
     }

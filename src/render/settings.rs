@@ -221,6 +221,11 @@ settings! {
     #[serde(default = "default_avsm_nodes")]
     avsm_nodes: u32 = default_avsm_nodes();
 
+    /// Texels a side of each light's smoke shadow map (16..=1024): the map is fitted to
+    /// the particles' bounds every frame, so this is the shadow's resolution across them.
+    #[serde(default = "default_avsm_px")]
+    avsm_px: u32 = default_avsm_px();
+
     /// Simpson steps of a smoke particle's in-scattering along one pixel's interval
     /// (seed 001 §3.10; even, 2..=64). The optical depth is exact whatever this is.
     #[serde(default = "default_smoke_simpson_steps")]
@@ -238,6 +243,10 @@ fn default_media_step_m() -> f32 {
 
 fn default_avsm_nodes() -> u32 {
     8
+}
+
+fn default_avsm_px() -> u32 {
+    128
 }
 
 fn default_smoke_simpson_steps() -> u32 {
@@ -577,6 +586,11 @@ impl Settings {
             crate::smoke::avsm::NODE_COUNTS.contains(&(self.avsm_nodes as usize)),
             "avsm_nodes={}: must be 4, 8 or 16",
             self.avsm_nodes
+        );
+        anyhow::ensure!(
+            (16..=1024).contains(&self.avsm_px),
+            "avsm_px={}: must be 16..=1024",
+            self.avsm_px
         );
         anyhow::ensure!(
             self.smoke_simpson_steps.is_multiple_of(2)

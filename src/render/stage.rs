@@ -23,6 +23,8 @@ pub enum Stage {
     MediaLayer,
     /// Optical depth of the media toward every light (world).
     MediaTransmittance,
+    /// The smoke's adaptive volumetric shadow maps, one per light (world, seed 002).
+    SmokeShadows,
     /// Hidden-froxel culling and the froxels' voxel requests (per viewer set; the sparse
     /// grid's brick allocation between them is world work).
     GridRequests,
@@ -50,12 +52,13 @@ pub enum Scope {
 
 impl Stage {
     /// Every stage, in the order the frame records them.
-    pub const ALL: [Stage; 11] = [
+    pub const ALL: [Stage; 12] = [
         Stage::GBuffer,
         Stage::SmokeParticles,
         Stage::ShadowMaps,
         Stage::MediaLayer,
         Stage::MediaTransmittance,
+        Stage::SmokeShadows,
         Stage::GridRequests,
         Stage::SharedGrid,
         Stage::ShadowFrustum,
@@ -72,6 +75,7 @@ impl Stage {
             Stage::ShadowMaps => "shadow_maps",
             Stage::MediaLayer => "media_layer",
             Stage::MediaTransmittance => "media_transmittance",
+            Stage::SmokeShadows => "smoke_shadows",
             Stage::GridRequests => "grid_requests",
             Stage::SharedGrid => "shared_grid",
             Stage::ShadowFrustum => "shadow_frustum",
@@ -108,6 +112,7 @@ impl Stage {
             | Stage::SmokeParticles
             | Stage::MediaLayer
             | Stage::MediaTransmittance
+            | Stage::SmokeShadows
             | Stage::SharedGrid => Scope::World,
             _ => Scope::Viewers,
         }
@@ -290,5 +295,7 @@ mod tests {
         // The transmittance columns read the media layer.
         assert!(at(Stage::MediaLayer) < at(Stage::MediaTransmittance));
         assert!(at(Stage::ShadowMaps) < at(Stage::ShadowFrustum));
+        // Froxels and surfaces read the smoke's shadow maps.
+        assert!(at(Stage::SmokeShadows) < at(Stage::FroxelLighting));
     }
 }

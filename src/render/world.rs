@@ -11,6 +11,7 @@ use super::scene_gpu::SceneGpu;
 use super::shadow_maps::ShadowMaps;
 use super::shared_grid::{GridUpdate, SharedShadowGrid};
 use super::smoke_particles::SmokeParticles;
+use super::smoke_shadows::{self, SmokeShadows};
 use super::{Mode, Settings, Timestamps};
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, Scene};
@@ -66,6 +67,8 @@ pub struct World {
     pub(crate) smoke: Option<SmokeParticles>,
     /// Smoke particles alive this frame (`Frame.particle_count`).
     pub(crate) particle_count: u32,
+    /// The smoke's adaptive volumetric shadow maps (smoke_shadows.rs).
+    pub(crate) smoke_shadows: SmokeShadows,
     /// The lights as last uploaded (animated lights move; a change marks the light dirty).
     lights_uploaded: Option<Vec<LightGpu>>,
     /// Scene time of the movers as last uploaded.
@@ -100,7 +103,14 @@ impl World {
         } else {
             None
         };
-        let gpu = SceneGpu::new(&ctx, &scene, bvh, &light_media, layer_plan.as_ref())?;
+        let gpu = SceneGpu::new(
+            &ctx,
+            &scene,
+            bvh,
+            &light_media,
+            layer_plan.as_ref(),
+            smoke_shadows::node_count(&scene, &settings),
+        )?;
         let grid = match scene.media_bounds() {
             Some(bounds) if shared && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
                 &ctx,
@@ -125,6 +135,7 @@ impl World {
             layer: layer_plan.map(|p| MediaLayer::new(&ctx, &gpu.layout, p)),
             smoke: SmokeParticles::new(&ctx, &scene, &gpu.particles),
             particle_count: 0,
+            smoke_shadows: SmokeShadows::new(&ctx, &gpu.layout, &scene, &settings),
             triangles: bvh.triangle_count()
                 + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
             gpu,
@@ -147,6 +158,7 @@ impl World {
         self.movers_time = None;
         self.shadow_maps.invalidate();
         self.transmittance.invalidate();
+        self.smoke_shadows.invalidate();
         if let Some(l) = &mut self.layer {
             l.invalidate();
         }
@@ -200,6 +212,16 @@ impl World {
             .as_mut()
             .map_or(0, |sm| sm.prepare(&self.ctx, scene, time_s));
         self.particle_count = particle_count;
+        // The shadow maps are fitted to the particles (and keyed by them for the cache)
+        // on the host: the CPU twin of the pass above, the same particles in f64.
+        let particles = super::smoke_particles::cpu_particles(scene, time_s);
+        self.smoke_shadows.prepare(
+            &self.ctx,
+            &self.gpu,
+            &particles[..(particle_count as usize).min(particles.len())],
+            self.lights_uploaded.as_deref().unwrap_or_default(),
+            dirty_lights,
+        );
         let mut flags = Lookup::of(s).flags();
         if s.parity {
             flags |= FLAG_PARITY;
@@ -343,6 +365,15 @@ impl World {
             l.regrow(plan);
         }
         Ok(())
+    }
+
+    /// Records the smoke's shadow maps (when the particles or a light changed).
+    pub(crate) fn add_smoke_shadows(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        ts: &Timestamps,
+    ) -> bool {
+        self.smoke_shadows.add_pass(enc, &self.gpu.bind_group, ts)
     }
 
     /// Records the media transmittance toward the lights whose volume is stale.
