@@ -55,7 +55,7 @@ impl ViewerSet {
         settings: &Settings,
         targets: &[(usize, &FrameTarget)],
     ) -> anyhow::Result<ViewerSet> {
-        let vol = Self::volumes(ctx, settings, targets)?;
+        let vol = Self::volumes(ctx, scene, settings, targets)?;
         let (frame, views, bind_group) = Self::uniforms(ctx, scene, vol.count)?;
         Ok(ViewerSet {
             vol,
@@ -74,6 +74,7 @@ impl ViewerSet {
 
     fn volumes(
         ctx: &GpuContext,
+        scene: &SceneGpu,
         s: &Settings,
         targets: &[(usize, &FrameTarget)],
     ) -> anyhow::Result<ViewerVolumes> {
@@ -86,6 +87,7 @@ impl ViewerSet {
             s.frustum_slices(),
             s.temporal,
             targets.iter().map(|(_, t)| t.pixels()).sum(),
+            scene.particle_capacity,
         )
     }
 
@@ -123,7 +125,7 @@ impl ViewerSet {
         let count: usize = targets.iter().map(|(_, t)| t.views.len()).sum();
         let pixels: u64 = targets.iter().map(|(_, t)| t.pixels()).sum();
         if count != self.vol.count || pixels != self.vol.output_pixels {
-            let old = std::mem::replace(&mut self.vol, Self::volumes(ctx, settings, targets)?);
+            let old = std::mem::replace(&mut self.vol, Self::volumes(ctx, scene, settings, targets)?);
             self.history.reallocated(old, settings.temporal);
             (self.frame, self.views, self.bind_group) = Self::uniforms(ctx, scene, count)?;
         } else if self.scene_generation != scene.generation {
@@ -201,6 +203,10 @@ impl ViewerSet {
             .write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
         ctx.queue
             .write_buffer(&self.views, 0, bytemuck::cast_slice(&self.gpu_views));
+        if let Some(smoke) = &self.vol.smoke {
+            let view_projs: Vec<_> = self.gpu_views.iter().map(|v| v.view_proj).collect();
+            smoke.write_views(ctx, &view_projs, settings.smoke_simpson_steps);
+        }
         Ok(())
     }
 

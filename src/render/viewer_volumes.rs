@@ -152,6 +152,8 @@ pub struct ViewerVolumes {
     pub(crate) gbuf_normal: wgpu::Texture,
     pub(crate) gbuf_albedo: wgpu::Texture,
     pub(crate) gbuf_depth: wgpu::Texture,
+    /// Smoke proxies and layers (a scene with emitters only; smoke_view.rs).
+    pub(crate) smoke: Option<super::smoke_view::SmokeBuffers>,
 }
 
 impl ViewerVolumes {
@@ -163,6 +165,7 @@ impl ViewerVolumes {
         frustum_slices: u32,
         temporal: bool,
         output_pixels: u64,
+        particle_capacity: u32,
     ) -> anyhow::Result<ViewerVolumes> {
         let [froxels, froxel_history, integrated, frustum, tile_depth, column_limit, output] =
             storage_sizes(
@@ -191,6 +194,17 @@ impl ViewerVolumes {
                 view_formats: &[],
             })
         };
+        let smoke = (particle_capacity > 0)
+            .then(|| {
+                super::smoke_view::SmokeBuffers::new(
+                    ctx,
+                    count,
+                    layout.width,
+                    layout.height,
+                    particle_capacity,
+                )
+            })
+            .transpose()?;
         let n = count as u32;
         let per_8 = |[x, y]: [u32; 2]| [x.div_ceil(8), y.div_ceil(8), n];
         Ok(ViewerVolumes {
@@ -219,6 +233,7 @@ impl ViewerVolumes {
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
             gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
             gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
+            smoke,
         })
     }
 
@@ -239,7 +254,7 @@ impl ViewerVolumes {
         } else {
             0
         };
-        vec![
+        let mut list = vec![
             ("froxels", self.froxels.size() / n),
             ("froxel_history", history),
             ("integrated", self.integrated.size() / n),
@@ -250,6 +265,10 @@ impl ViewerVolumes {
             ),
             ("gbuffer", pixels * GBUFFER_BYTES_PER_PIXEL),
             ("output", pixels * 4),
-        ]
+        ];
+        if let Some(s) = &self.smoke {
+            list.push(("smoke", s.bytes_per_viewer(pixels)));
+        }
+        list
     }
 }
