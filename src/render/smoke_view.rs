@@ -177,9 +177,10 @@ impl SmokeView {
                         ty: wgpu::BindingType::Buffer {
                             ty: wgpu::BufferBindingType::Uniform,
                             has_dynamic_offset: true,
-                            min_binding_size: wgpu::BufferSize::new(
-                                std::mem::size_of::<SmokeViewUniform>() as u64,
-                            ),
+                            min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<
+                                SmokeViewUniform,
+                            >()
+                                as u64),
                         },
                         count: None,
                     },
@@ -317,9 +318,7 @@ impl SmokeView {
                     resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
                         buffer: &smoke.uniforms,
                         offset: 0,
-                        size: wgpu::BufferSize::new(
-                            std::mem::size_of::<SmokeViewUniform>() as u64
-                        ),
+                        size: wgpu::BufferSize::new(std::mem::size_of::<SmokeViewUniform>() as u64),
                     }),
                 },
             ],
@@ -414,7 +413,8 @@ pub(crate) fn read_order(
     particles: u32,
 ) -> anyhow::Result<Vec<Vec<(u32, f32)>>> {
     let bytes = ctx.read_buffer(&smoke.proxies)?;
-    let word = |at: usize| u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]);
+    let word =
+        |at: usize| u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]);
     Ok((0..smoke.count as usize)
         .map(|v| {
             (0..particles.min(smoke.capacity) as usize)

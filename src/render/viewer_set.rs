@@ -125,7 +125,8 @@ impl ViewerSet {
         let count: usize = targets.iter().map(|(_, t)| t.views.len()).sum();
         let pixels: u64 = targets.iter().map(|(_, t)| t.pixels()).sum();
         if count != self.vol.count || pixels != self.vol.output_pixels {
-            let old = std::mem::replace(&mut self.vol, Self::volumes(ctx, scene, settings, targets)?);
+            let old =
+                std::mem::replace(&mut self.vol, Self::volumes(ctx, scene, settings, targets)?);
             self.history.reallocated(old, settings.temporal);
             (self.frame, self.views, self.bind_group) = Self::uniforms(ctx, scene, count)?;
         } else if self.scene_generation != scene.generation {
