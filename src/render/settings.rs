@@ -579,7 +579,8 @@ impl Settings {
             self.avsm_nodes
         );
         anyhow::ensure!(
-            self.smoke_simpson_steps % 2 == 0 && (2..=64).contains(&self.smoke_simpson_steps),
+            self.smoke_simpson_steps.is_multiple_of(2)
+                && (2..=64).contains(&self.smoke_simpson_steps),
             "smoke_simpson_steps={}: must be even, 2..=64",
             self.smoke_simpson_steps
         );

@@ -8,6 +8,7 @@ use super::froxel_lighting::FroxelHistory;
 use super::gbuffer::RasterView;
 use super::gpu_types::{FrameGpu, ViewGpu};
 use super::scene_gpu::SceneGpu;
+use super::smoke_view::SmokeBuffers;
 use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
 use crate::gpu::GpuContext;
 
@@ -79,16 +80,27 @@ impl ViewerSet {
         targets: &[(usize, &FrameTarget)],
     ) -> anyhow::Result<ViewerVolumes> {
         let (_, first) = targets[0];
-        ViewerVolumes::new(
+        let count = targets.iter().map(|(_, t)| t.views.len()).sum();
+        let mut vol = ViewerVolumes::new(
             ctx,
-            targets.iter().map(|(_, t)| t.views.len()).sum(),
+            count,
             ViewerLayout::new(s, first.view_width, first.view_height),
             s.slices,
             s.frustum_slices(),
             s.temporal,
             targets.iter().map(|(_, t)| t.pixels()).sum(),
-            scene.particle_capacity,
-        )
+        )?;
+        // Smoke proxies and layers only in a scene with emitters.
+        if scene.particle_capacity > 0 {
+            vol.smoke = Some(SmokeBuffers::new(
+                ctx,
+                count,
+                first.view_width,
+                first.view_height,
+                scene.particle_capacity,
+            )?);
+        }
+        Ok(vol)
     }
 
     fn uniforms(

@@ -165,7 +165,6 @@ impl ViewerVolumes {
         frustum_slices: u32,
         temporal: bool,
         output_pixels: u64,
-        particle_capacity: u32,
     ) -> anyhow::Result<ViewerVolumes> {
         let [froxels, froxel_history, integrated, frustum, tile_depth, column_limit, output] =
             storage_sizes(
@@ -194,17 +193,6 @@ impl ViewerVolumes {
                 view_formats: &[],
             })
         };
-        let smoke = (particle_capacity > 0)
-            .then(|| {
-                super::smoke_view::SmokeBuffers::new(
-                    ctx,
-                    count,
-                    layout.width,
-                    layout.height,
-                    particle_capacity,
-                )
-            })
-            .transpose()?;
         let n = count as u32;
         let per_8 = |[x, y]: [u32; 2]| [x.div_ceil(8), y.div_ceil(8), n];
         Ok(ViewerVolumes {
@@ -233,7 +221,7 @@ impl ViewerVolumes {
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
             gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
             gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
-            smoke,
+            smoke: None,
         })
     }
 
