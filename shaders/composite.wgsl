@@ -2,46 +2,19 @@
 // shared shadow maps when there are any, else by a shadow ray; every light dimmed by
 // the media between it and the surface), then
 // `surface × transmittance + in-scattered` from the integrated volume at the pixel's
-// depth (000 §3.1.4), ACES-fitted tone curve, sRGB, RGBA8 out.
+// depth (000 §3.1.4), the smoke layer over it (issue 15), ACES-fitted tone curve, sRGB, RGBA8 out.
 
 @group(1) @binding(0) var<storage, read> integrated: array<vec2u>;
 @group(1) @binding(1) var<storage, read_write> output: array<u32>;
 @group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
 @group(1) @binding(3) var gbuf_normal: texture_2d_array<f32>;
 @group(1) @binding(4) var gbuf_albedo: texture_2d_array<f32>;
+// This set's smoke layers (premultiplied, fog around the particles included), read when
+// the frame has particles; a 1×1 stub otherwise (shaders/smoke_raster.wgsl).
+@group(1) @binding(5) var smoke: texture_2d_array<f32>;
 // Bindings 10–14: the shadow maps (shaders/shadow_lookup.wgsl).
 
-fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
-    if s < 0 {
-        return vec4f(0.0, 0.0, 0.0, 1.0);
-    }
-    let i = v.froxel_base + x + v.froxel_dims.x * (y + v.froxel_dims.y * u32(s));
-    return unpack_rgba16(integrated[i]);
-}
-
-// Trilinear lookup: bilinear between froxel column centres, linear between slice
-// boundaries (boundary b holds integrated[b − 1]; boundary 0 is the eye).
-fn sample_integrated(v: View, pix: vec2f, depth: f32) -> vec4f {
-    let w = clamp(depth_to_slice(v, depth), 0.0, f32(frame.slices));
-    let s0 = min(floor(w), f32(frame.slices) - 1.0);
-    let fs = w - s0;
-    let c = pix / f32(v.froxel_px) - 0.5;
-    let cmax = vec2f(v.froxel_dims) - 1.0;
-    let c0 = clamp(floor(c), vec2f(0.0), cmax);
-    let c1 = min(c0 + 1.0, cmax);
-    let f = clamp(c - c0, vec2f(0.0), vec2f(1.0));
-    var acc = vec4f(0.0);
-    for (var k = 0u; k < 4u; k++) {
-        let sx = select(c0.x, c1.x, (k & 1u) != 0u);
-        let sy = select(c0.y, c1.y, (k & 2u) != 0u);
-        let wx = select(1.0 - f.x, f.x, (k & 1u) != 0u);
-        let wy = select(1.0 - f.y, f.y, (k & 2u) != 0u);
-        let a = fetch_integrated(v, u32(sx), u32(sy), i32(s0) - 1);
-        let b = fetch_integrated(v, u32(sx), u32(sy), i32(s0));
-        acc += wx * wy * mix(a, b, fs);
-    }
-    return acc;
-}
+// fetch_integrated / sample_integrated: shaders/integrated_lookup.wgsl.
 
 fn aces(x: vec3f) -> vec3f {
     return clamp(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), vec3f(0.0), vec3f(1.0));
@@ -99,6 +72,11 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
     if (frame.flags & FLAG_MEDIA) != 0u {
         let fog = sample_integrated(v, pix, depth);
         color = color * fog.w + fog.rgb;
+    }
+    // The smoke over what lies behind it: S + (1 − S.a)·base, S premultiplied.
+    if frame.particle_count > 0u {
+        let s = textureLoad(smoke, texel, layer, 0);
+        color = s.rgb + (1.0 - s.a) * color;
     }
     let ldr = srgb(aces(color * frame.exposure));
     let q = vec4u(vec3u(round(clamp(ldr, vec3f(0.0), vec3f(1.0)) * 255.0)), 255u);

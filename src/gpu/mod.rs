@@ -214,10 +214,24 @@ impl GpuContext {
 
     /// A bind group layout of storage buffers for compute, bindings 0, 1, … in order.
     pub fn storage_layout(&self, label: &str, access: &[Access]) -> wgpu::BindGroupLayout {
+        self.storage_layout_for(label, access, wgpu::ShaderStages::COMPUTE)
+    }
+
+    /// As [`GpuContext::storage_layout`], visible to the shader stages `visibility`
+    /// (the scene's group 0 is also read by fragment shaders: the smoke raster).
+    pub fn storage_layout_for(
+        &self,
+        label: &str,
+        access: &[Access],
+        visibility: wgpu::ShaderStages,
+    ) -> wgpu::BindGroupLayout {
         let entries: Vec<wgpu::BindGroupLayoutEntry> = access
             .iter()
             .enumerate()
-            .map(|(i, a)| storage_entry(i as u32, *a))
+            .map(|(i, a)| wgpu::BindGroupLayoutEntry {
+                visibility,
+                ..storage_entry(i as u32, *a)
+            })
             .collect();
         self.device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {

@@ -8,6 +8,8 @@ use crate::gpu::{storage_entry, GpuContext};
 pub(crate) struct Composite {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    /// Bound as the smoke layers of a set without them (never read: no particles).
+    no_smoke: wgpu::Texture,
 }
 
 pub(crate) fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
@@ -34,6 +36,7 @@ impl Composite {
                 texture_entry(2),
                 texture_entry(3),
                 texture_entry(4),
+                texture_entry(5),
             ],
         );
         let module = super::stage_shader(
@@ -41,12 +44,28 @@ impl Composite {
             "composite",
             concat!(
                 include_str!("../../shaders/shadow_lookup.wgsl"),
+                include_str!("../../shaders/integrated_lookup.wgsl"),
                 include_str!("../../shaders/composite.wgsl")
             ),
         );
+        let no_smoke = ctx.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("no smoke"),
+            size: wgpu::Extent3d {
+                width: 1,
+                height: 1,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: super::smoke_view::SMOKE_FORMAT,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
         Composite {
             pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),
             layout,
+            no_smoke,
         }
     }
 
@@ -70,6 +89,7 @@ impl Composite {
             array_view(&volumes.gbuf_normal),
             array_view(&volumes.gbuf_albedo),
         );
+        let smoke = array_view(volumes.smoke.as_ref().map_or(&self.no_smoke, |s| &s.layers));
         let entries = vec![
             wgpu::BindGroupEntry {
                 binding: 0,
@@ -90,6 +110,10 @@ impl Composite {
             wgpu::BindGroupEntry {
                 binding: 4,
                 resource: wgpu::BindingResource::TextureView(&alb),
+            },
+            wgpu::BindGroupEntry {
+                binding: 5,
+                resource: wgpu::BindingResource::TextureView(&smoke),
             },
         ];
         let bg = maps.stage_bind_group(ctx, "composite", &self.layout, entries);

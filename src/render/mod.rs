@@ -26,6 +26,7 @@ mod shadow_maps;
 mod shared_grid;
 mod smoke_particles;
 mod smoke_shadows;
+mod smoke_view;
 mod stage;
 mod stats;
 mod target;
@@ -82,6 +83,7 @@ struct ViewerStages {
     frustum: shadow_frustum::ShadowFrustum,
     lighting: froxel_lighting::FroxelLighting,
     integration: volume_integration::VolumeIntegration,
+    smoke: smoke_view::SmokeView,
     composite: composite::Composite,
 }
 
@@ -92,6 +94,8 @@ pub struct Renderer {
     stages: ViewerStages,
     sets: BTreeMap<(u32, u32), ViewerSet>,
     timestamps: Timestamps,
+    /// Live smoke particles of the last frame.
+    particles: u32,
 }
 
 impl Renderer {
@@ -129,10 +133,12 @@ impl Renderer {
                 frustum: shadow_frustum::ShadowFrustum::new(&ctx, layout),
                 lighting: froxel_lighting::FroxelLighting::new(&ctx, layout),
                 integration: volume_integration::VolumeIntegration::new(&ctx, layout),
+                smoke: smoke_view::SmokeView::new(&ctx, &world.gpu),
                 composite: composite::Composite::new(&ctx, layout),
             },
             timestamps: Timestamps::new(&ctx),
             sets: BTreeMap::new(),
+            particles: 0,
             world,
         })
     }
@@ -212,6 +218,40 @@ impl Renderer {
             .collect())
     }
 
+    /// Live smoke particles in the last frame (0: no smoke stage ran).
+    pub fn particle_count(&self) -> u32 {
+        self.particles
+    }
+
+    /// Reads the last frame's smoke layers of the first view size back as f32 RGBA
+    /// (premultiplied, the fog around the smoke included), viewer by viewer, row-major
+    /// (for tests and tools); empty in a scene without emitters. Stale after a frame
+    /// without particles.
+    pub fn read_smoke_layers(&self) -> anyhow::Result<Vec<Vec<[f32; 4]>>> {
+        let Some((_, set)) = self.sets.iter().next() else {
+            return Ok(Vec::new());
+        };
+        match &set.vol.smoke {
+            Some(s) => {
+                let l = set.vol.layout;
+                smoke_view::read_layers(&self.world.ctx, s, l.width, l.height)
+            }
+            None => Ok(Vec::new()),
+        }
+    }
+
+    /// The last frame's back-to-front particle order of the first view size, per viewer:
+    /// (slot in the frame's particle list, distance from the eye as sorted on the GPU).
+    pub fn read_smoke_order(&self) -> anyhow::Result<Vec<Vec<(u32, f32)>>> {
+        let Some(set) = self.sets.values().next() else {
+            return Ok(Vec::new());
+        };
+        match &set.vol.smoke {
+            Some(s) => smoke_view::read_order(&self.world.ctx, s, self.particles),
+            None => Ok(Vec::new()),
+        }
+    }
+
     /// Renders one frame for every camera (all the same size, each its own image, viewer
     /// ids 0, 1, …) at scene time `time_s`.
     pub fn render(
@@ -248,6 +288,7 @@ impl Renderer {
         targets.iter().try_for_each(FrameTarget::validate)?;
         let started = Instant::now();
         let frame = self.world.begin_frame(time_s)?;
+        self.particles = frame.particle_count;
         self.prepare_sets(targets, frame)?;
         let (world, stages, sets, ts) =
             (&mut self.world, &self.stages, &self.sets, &self.timestamps);
@@ -297,6 +338,17 @@ impl Renderer {
                 stages.integration.add_pass(&ctx, e, s, ts)
             });
         }
+        // Smoke only in a frame with live particles (else the images are bit-identical to
+        // a scene without emitters: the composite does not read the layers).
+        let particles = frame.particle_count;
+        if particles > 0 {
+            f.each_set(Stage::SmokeProxies, |e, s| {
+                stages.smoke.add_proxies(&ctx, e, s, maps, particles, ts)
+            });
+            f.each_set(Stage::SmokeRaster, |e, s| {
+                stages.smoke.add_raster(&ctx, e, s, particles, ts)
+            });
+        }
         f.each_set(Stage::Composite, |e, s| {
             stages.composite.add_pass(&ctx, e, s, maps, ts)
         });
@@ -305,7 +357,7 @@ impl Renderer {
         ctx.submit(enc);
         let bytes = readback.map(&ctx)?;
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
-        self.finish_frame(targets, bytes, &ran, frame_ms)
+        self.finish_frame(targets, bytes, &ran, frame_ms, frame.particle_count)
     }
 
     /// Groups the targets by view size into viewer sets (dropping sets no target uses),
@@ -353,6 +405,7 @@ impl Renderer {
         bytes: ReadbackBytes,
         ran: &[Stage],
         frame_ms: f64,
+        particles: u32,
     ) -> anyhow::Result<TargetsOutput> {
         let world = &self.world;
         let mut images = vec![Vec::new(); targets.len()];
@@ -367,7 +420,7 @@ impl Renderer {
         let stage_ms = self
             .timestamps
             .stage_ms(&bytes.ticks, world.ctx.timestamp_period_ns);
-        let dispatches = dispatches(ran, world, &self.sets);
+        let dispatches = dispatches(ran, world, &self.sets, particles);
         let stats = stats::build(stats::StatsInput {
             world,
             counters: &bytes.counters,
@@ -433,11 +486,12 @@ impl<'a> FrameRecorder<'a> {
 }
 
 /// Workgroups of every stage that ran: world stages once, viewer stages per set (what
-/// stats report; the G-buffer is raster work and has none).
+/// stats report; the G-buffer and the smoke raster are raster work and have none).
 fn dispatches(
     ran: &[Stage],
     world: &World,
     sets: &BTreeMap<(u32, u32), ViewerSet>,
+    particles: u32,
 ) -> Vec<(&'static str, [u32; 3])> {
     let mut out = Vec::new();
     for &stage in ran {
@@ -445,7 +499,7 @@ fn dispatches(
             sets.values().map(move |s| f(&s.vol.groups))
         };
         let groups: Vec<[u32; 3]> = match stage {
-            Stage::GBuffer => Vec::new(),
+            Stage::GBuffer | Stage::SmokeRaster => Vec::new(),
             Stage::ShadowMaps => vec![[0, 0, 0]],
             Stage::SmokeParticles => world.smoke.iter().map(|s| s.workgroups()).collect(),
             Stage::MediaLayer => world
@@ -460,6 +514,10 @@ fn dispatches(
                 per_set(|g| g.columns).collect()
             }
             Stage::ShadowFrustum => per_set(|g| g.frustum).collect(),
+            Stage::SmokeProxies => sets
+                .values()
+                .filter_map(|s| s.vol.smoke.as_ref().map(|b| b.workgroups(particles)))
+                .collect(),
             Stage::Composite => per_set(|g| g.pixels).collect(),
         };
         out.extend(groups.into_iter().map(|g| (stage.name(), g)));

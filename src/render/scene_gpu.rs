@@ -255,12 +255,14 @@ impl SceneGpu {
             wgpu::BufferUsages::empty(),
         )?;
         let light_media = ctx.storage_init("light media", light_media, wgpu::BufferUsages::empty());
-        let layout = ctx.storage_layout(
+        // Compute stages and the smoke raster's fragments (smoke_view.rs) read group 0.
+        let layout = ctx.storage_layout_for(
             "scene",
             &[
                 Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite,
                 ReadWrite, ReadWrite, Read, ReadWrite, Read,
             ],
+            wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
         );
 
         // Raster vertices and indices: the static mesh in clusters, then the movers (whose

@@ -36,6 +36,12 @@ pub enum Stage {
     FroxelLighting,
     /// Front-to-back integration along froxel columns (paper 000 §3.1.4).
     VolumeIntegration,
+    /// Smoke: every viewer's particles sorted back to front and their tetrahedral proxies
+    /// written (one dispatch per set; frames with live particles only; paper 001).
+    SmokeProxies,
+    /// Smoke: the proxies rasterised and integrated per pixel into each viewer's smoke
+    /// layer, with the fog around them (one render pass per viewer; paper 001).
+    SmokeRaster,
     /// Surfaces, their shadows and the fog in front of them, tone-mapped into the
     /// sessions' frames.
     Composite,
@@ -52,7 +58,7 @@ pub enum Scope {
 
 impl Stage {
     /// Every stage, in the order the frame records them.
-    pub const ALL: [Stage; 12] = [
+    pub const ALL: [Stage; 14] = [
         Stage::GBuffer,
         Stage::SmokeParticles,
         Stage::ShadowMaps,
@@ -64,6 +70,8 @@ impl Stage {
         Stage::ShadowFrustum,
         Stage::FroxelLighting,
         Stage::VolumeIntegration,
+        Stage::SmokeProxies,
+        Stage::SmokeRaster,
         Stage::Composite,
     ];
 
@@ -81,6 +89,8 @@ impl Stage {
             Stage::ShadowFrustum => "shadow_frustum",
             Stage::FroxelLighting => "froxel_lighting",
             Stage::VolumeIntegration => "volume_integration",
+            Stage::SmokeProxies => "smoke_proxies",
+            Stage::SmokeRaster => "smoke_raster",
             Stage::Composite => "composite",
         }
     }
@@ -297,5 +307,9 @@ mod tests {
         assert!(at(Stage::ShadowMaps) < at(Stage::ShadowFrustum));
         // Froxels and surfaces read the smoke's shadow maps.
         assert!(at(Stage::SmokeShadows) < at(Stage::FroxelLighting));
+        // The smoke reads the integrated fog and the maps; the composite reads the smoke.
+        assert!(at(Stage::VolumeIntegration) < at(Stage::SmokeProxies));
+        assert!(at(Stage::SmokeProxies) < at(Stage::SmokeRaster));
+        assert!(at(Stage::SmokeRaster) < at(Stage::Composite));
     }
 }

@@ -8,6 +8,7 @@ use super::froxel_lighting::FroxelHistory;
 use super::gbuffer::RasterView;
 use super::gpu_types::{FrameGpu, ViewGpu};
 use super::scene_gpu::SceneGpu;
+use super::smoke_view::SmokeBuffers;
 use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
 use crate::gpu::GpuContext;
 
@@ -55,7 +56,7 @@ impl ViewerSet {
         settings: &Settings,
         targets: &[(usize, &FrameTarget)],
     ) -> anyhow::Result<ViewerSet> {
-        let vol = Self::volumes(ctx, settings, targets)?;
+        let vol = Self::volumes(ctx, scene, settings, targets)?;
         let (frame, views, bind_group) = Self::uniforms(ctx, scene, vol.count)?;
         Ok(ViewerSet {
             vol,
@@ -74,19 +75,32 @@ impl ViewerSet {
 
     fn volumes(
         ctx: &GpuContext,
+        scene: &SceneGpu,
         s: &Settings,
         targets: &[(usize, &FrameTarget)],
     ) -> anyhow::Result<ViewerVolumes> {
         let (_, first) = targets[0];
-        ViewerVolumes::new(
+        let count = targets.iter().map(|(_, t)| t.views.len()).sum();
+        let mut vol = ViewerVolumes::new(
             ctx,
-            targets.iter().map(|(_, t)| t.views.len()).sum(),
+            count,
             ViewerLayout::new(s, first.view_width, first.view_height),
             s.slices,
             s.frustum_slices(),
             s.temporal,
             targets.iter().map(|(_, t)| t.pixels()).sum(),
-        )
+        )?;
+        // Smoke proxies and layers only in a scene with emitters.
+        if scene.particle_capacity > 0 {
+            vol.smoke = Some(SmokeBuffers::new(
+                ctx,
+                count,
+                first.view_width,
+                first.view_height,
+                scene.particle_capacity,
+            )?);
+        }
+        Ok(vol)
     }
 
     fn uniforms(
@@ -123,7 +137,8 @@ impl ViewerSet {
         let count: usize = targets.iter().map(|(_, t)| t.views.len()).sum();
         let pixels: u64 = targets.iter().map(|(_, t)| t.pixels()).sum();
         if count != self.vol.count || pixels != self.vol.output_pixels {
-            let old = std::mem::replace(&mut self.vol, Self::volumes(ctx, settings, targets)?);
+            let old =
+                std::mem::replace(&mut self.vol, Self::volumes(ctx, scene, settings, targets)?);
             self.history.reallocated(old, settings.temporal);
             (self.frame, self.views, self.bind_group) = Self::uniforms(ctx, scene, count)?;
         } else if self.scene_generation != scene.generation {
@@ -201,6 +216,10 @@ impl ViewerSet {
             .write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
         ctx.queue
             .write_buffer(&self.views, 0, bytemuck::cast_slice(&self.gpu_views));
+        if let Some(smoke) = &self.vol.smoke {
+            let view_projs: Vec<_> = self.gpu_views.iter().map(|v| v.view_proj).collect();
+            smoke.write_views(ctx, &view_projs, settings.smoke_simpson_steps);
+        }
         Ok(())
     }
 

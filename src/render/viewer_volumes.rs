@@ -152,6 +152,8 @@ pub struct ViewerVolumes {
     pub(crate) gbuf_normal: wgpu::Texture,
     pub(crate) gbuf_albedo: wgpu::Texture,
     pub(crate) gbuf_depth: wgpu::Texture,
+    /// Smoke proxies and layers (a scene with emitters only; smoke_view.rs).
+    pub(crate) smoke: Option<super::smoke_view::SmokeBuffers>,
 }
 
 impl ViewerVolumes {
@@ -219,6 +221,7 @@ impl ViewerVolumes {
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
             gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
             gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
+            smoke: None,
         })
     }
 
@@ -239,7 +242,7 @@ impl ViewerVolumes {
         } else {
             0
         };
-        vec![
+        let mut list = vec![
             ("froxels", self.froxels.size() / n),
             ("froxel_history", history),
             ("integrated", self.integrated.size() / n),
@@ -250,6 +253,10 @@ impl ViewerVolumes {
             ),
             ("gbuffer", pixels * GBUFFER_BYTES_PER_PIXEL),
             ("output", pixels * 4),
-        ]
+        ];
+        if let Some(s) = &self.smoke {
+            list.push(("smoke", s.bytes_per_viewer(pixels)));
+        }
+        list
     }
 }

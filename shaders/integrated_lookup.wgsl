@@ -1,0 +1,34 @@
+// Reads of a viewer's integrated froxel volume (in-scattered rgb, transmittance from the
+// eye), shared by the composite and the smoke raster; each declares `integrated`.
+
+fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
+    if s < 0 {
+        return vec4f(0.0, 0.0, 0.0, 1.0);
+    }
+    let i = v.froxel_base + x + v.froxel_dims.x * (y + v.froxel_dims.y * u32(s));
+    return unpack_rgba16(integrated[i]);
+}
+
+// Trilinear lookup: bilinear between froxel column centres, linear between slice
+// boundaries (boundary b holds integrated[b − 1]; boundary 0 is the eye).
+fn sample_integrated(v: View, pix: vec2f, depth: f32) -> vec4f {
+    let w = clamp(depth_to_slice(v, depth), 0.0, f32(frame.slices));
+    let s0 = min(floor(w), f32(frame.slices) - 1.0);
+    let fs = w - s0;
+    let c = pix / f32(v.froxel_px) - 0.5;
+    let cmax = vec2f(v.froxel_dims) - 1.0;
+    let c0 = clamp(floor(c), vec2f(0.0), cmax);
+    let c1 = min(c0 + 1.0, cmax);
+    let f = clamp(c - c0, vec2f(0.0), vec2f(1.0));
+    var acc = vec4f(0.0);
+    for (var k = 0u; k < 4u; k++) {
+        let sx = select(c0.x, c1.x, (k & 1u) != 0u);
+        let sy = select(c0.y, c1.y, (k & 2u) != 0u);
+        let wx = select(1.0 - f.x, f.x, (k & 1u) != 0u);
+        let wy = select(1.0 - f.y, f.y, (k & 2u) != 0u);
+        let a = fetch_integrated(v, u32(sx), u32(sy), i32(s0) - 1);
+        let b = fetch_integrated(v, u32(sx), u32(sy), i32(s0));
+        acc += wx * wy * mix(a, b, fs);
+    }
+    return acc;
+}
