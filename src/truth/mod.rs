@@ -38,6 +38,41 @@
 //! media are homogeneous or light only reaches part of them (colonnade: 1.3× the time
 //! without it, islands 1.8×) and much where long shadow rays to many lamps cross noisy
 //! fog (street: 43×, six lights through 60 m of noisy height fog).
+//!
+//! Smoke (issue 15, [`Smoke`]): the live particles of every `[[emitter]]` at the render's
+//! time (`crate::smoke::emitter::particles_at`), each the Gaussian `σt(l) = σ e^{−50l²/u²}`
+//! of paper 001 Eq. 9, summed exactly: no tetrahedra, no shadow maps. Extinction is grey
+//! as for the media (`σ = mean(σs) + σa` of its emitter), σs per channel, each emitter's
+//! HG `g`. Rays ignore a particle farther than [`CUT_FALLOFF`]`·u = 0.8u` from them (its
+//! density there is below e^{−32} ≈ 1e-14 of its peak); each emitter is first culled by a
+//! sphere around all its particles.
+//! - Every shadow ray (surfaces, media samples, smoke samples) multiplies its
+//!   transmittance by `exp(−Σ τ_p)`, `τ_p` the particle's optical depth along the segment
+//!   in closed form (erf, `GaussianAlongRay::optical_depth`).
+//! - A primary ray that crosses particles (within 0.8u of their centres) is cut at every
+//!   particle's entry and exit and at every media segment's edge. Pieces inside no
+//!   particle are integrated as the media march does (the segment's one sample, the
+//!   energy-conserving form). Pieces inside particles are cut into panels of at most half
+//!   a standard deviation (u/20) of the narrowest particle, and halved while a panel's
+//!   optical depth exceeds [`SMOKE_PANEL_TAU`]; each panel adds `T₀·(1 − e^{−Δτ})·N/D`
+//!   with `Δτ` exact (closed form plus the media's σt·length) and `N = ∫T·S`,
+//!   `D = ∫σt·T` by 4-point Gauss-Legendre, `T` exact at each node and `S` the media
+//!   segment's source plus each emitter's `σs(s)·(ambient + Σ L·V·T_shadow·p_HG(g))` (one
+//!   shadow ray per light and node, shared by the emitters; mixed media and smoke weight
+//!   their phases by their σs). This is exact wherever the source per extinction is
+//!   constant over a panel, so it cannot exceed the light even at σt = 10⁴ m⁻¹, and the
+//!   march stops once the transmittance is below 1e-7 (eye inside dense smoke). Particles
+//!   behind the near plane or straddling it are integrated from the near plane.
+//!
+//! Agreement with what is computed without it (`tests/truth_smoke.rs`, 1×1-pixel images,
+//! `cargo test --test truth_smoke -- --nocapture`): one particle (u = 1 m, σt 3 m⁻¹)
+//! under a sun matches an f64 quadrature whose sun and view transmittances are
+//! brute-force sums of the density within 3.3e-7 relative (rays 0, 0.1u, 0.3u, 0.6u
+//! from its centre); with the sun behind the eye (`T_light = T_view`, so
+//! `L = ϖ·E·p·(1 − T²)/2` exactly) within 2.6e-7 at σt 0.3 to 10⁴ m⁻¹ (τ up to 2500),
+//! 1.6e-5 for a particle 10 km away; the eye inside a particle within 2e-7; a lamp
+//! inside a particle within 2.2e-7; shadow rays through 40 particles match a 10⁶-point
+//! sum within 4e-11 in τ, and the ground lit through them within 3e-8.
 
 use crate::scene::{
     density_at, hg_phase, sample_media, Bvh, Camera, Light, LightKind, Medium, MediumKind, Ray,
