@@ -830,7 +830,7 @@ impl PixelContext<'_> {
                     medium = (ext, src);
                 }
             }
-            if !(next > cur) {
+            if next.is_nan() || next <= cur {
                 break;
             }
             if active.is_empty() {

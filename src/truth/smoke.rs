@@ -79,7 +79,7 @@ impl Smoke {
         for e in emitters {
             let scattering = DVec3::from(e.scattering.map(f64::from));
             let sigma_t = scattering.element_sum() / 3.0 + f64::from(e.absorption);
-            if !(sigma_t > 0.0) {
+            if sigma_t.is_nan() || sigma_t <= 0.0 {
                 continue;
             }
             let group = smoke.groups.len();
@@ -154,7 +154,7 @@ impl Smoke {
     /// (closed form per particle); stops once it passes `budget`.
     pub fn optical_depth(&self, p: DVec3, dir: DVec3, len_m: f64, budget: f64) -> f64 {
         let mut tau = 0.0;
-        if !(len_m > 0.0) {
+        if len_m.is_nan() || len_m <= 0.0 {
             return tau;
         }
         for g in self.groups_near(p, dir, 0.0, len_m) {
@@ -190,7 +190,7 @@ impl Smoke {
     /// `[t0, t1]`, sorted by entry.
     pub(crate) fn windows(&self, o: DVec3, dir: DVec3, t0: f64, t1: f64) -> Vec<Window> {
         let mut out = Vec::new();
-        if !(t1 > t0) {
+        if t0.is_nan() || t1.is_nan() || t1 <= t0 {
             return out;
         }
         for (gi, g) in self.groups.iter().enumerate() {
