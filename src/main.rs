@@ -147,7 +147,7 @@ impl SettingsArgs {
 
 #[derive(Args)]
 struct RenderArgs {
-    /// Built-in scene (colonnade, street, islands, cloud), a scene .toml, or a .glb/.gltf file.
+    /// Built-in scene (colonnade, street, islands, cloud, chimney, smokehall), a scene .toml, or a .glb/.gltf file.
     #[arg(long, default_value = "colonnade")]
     scene: String,
     /// Number of viewers.

@@ -5,6 +5,8 @@ const BUILTIN: &[(&str, &str)] = &[
     ("street", include_str!("../../scenes/street.toml")),
     ("islands", include_str!("../../scenes/islands.toml")),
     ("cloud", include_str!("../../scenes/cloud.toml")),
+    ("chimney", include_str!("../../scenes/chimney.toml")),
+    ("smokehall", include_str!("../../scenes/smokehall.toml")),
 ];
 
 /// Names of the built-in scenes.
