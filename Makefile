@@ -34,7 +34,8 @@ render: deps-runtime build
 # each also against the CPU truth on one image (colonnade at full size, ~6 s; Sponza and
 # street at 80x45, ~10 s and ~65 s: truth costs pixels x segments x lights), at 320x180
 # per viewer; colonnade also with 0.5 m and 0.125 m grids, the world media layer
-# (`layer`) and the fixed-overlap scenario (paper Figure 12). Reports and
+# (`layer`) and the fixed-overlap scenario (paper Figure 12); smokehall for the smoke
+# (issue 15: the shared smoke shadow maps once, the smoke per viewer). Reports and
 # plots go to out/bench/<scene>/. About 20 minutes on 2 cores with lavapipe. The dev
 # profile (opt-level 2, the one `make test` builds) is enough: the GPU work runs in Mesa.
 # Flags for every run, e.g. BENCH_ARGS="--frames 3 --width 640 --height 360".
@@ -51,6 +52,7 @@ bench: deps-runtime
 	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel_size_m=0.5' --variant 'fine:voxel_size_m=0.125' --variant 'layer:media_voxel_m=0.25' --overlap 10,25,50,75,100 --truth 1 $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene street --variant 'paper:demand=off,cache=off,shadow_map_px=0' $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene smokehall --modes shared,maps $(BENCH_ARGS)
 
 test: deps
 	$(CARGO) test -- --test-threads=1

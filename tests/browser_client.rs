@@ -679,3 +679,57 @@ fn base64_decode(s: &str) -> Vec<u8> {
         })
         .collect()
 }
+
+/// `fogcast serve --scene smokehall` in Chromium: the smoke is drawn (every smoke stage
+/// ran) and drifts while the camera stands still — the smoke is the only thing in
+/// smokehall that moves, so any change of the still view is the smoke's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn chromium_shows_the_smoke_scene_moving() {
+    let server = start(fogcast::server::ServerConfig {
+        scene: "smokehall".into(),
+        ..test_config()
+    })
+    .await;
+    let addr = server.local_addr();
+    let mut page = open_page(addr, "?w=160&h=90&quality=90&codec=jpeg", None).await;
+    let cdp = &mut page.cdp;
+    let s = cdp
+        .wait_stats("3 frames shown", |s| s["shown"].as_u64() >= Some(3))
+        .await;
+    assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
+    let first = cdp.eval("window.fogcast.canvasStats()").await;
+    assert_not_black(&first, "first shown");
+    let camera = s["camera"].clone();
+    // The server's scene clock runs on: a few seconds later the cloud has drifted.
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let shown = u64_of(&cdp.stats().await, "shown");
+    let later_stats = cdp
+        .wait_stats("two more frames", |s| {
+            s["shown"].as_u64() >= Some(shown + 2)
+        })
+        .await;
+    assert_eq!(later_stats["camera"], camera, "the camera stood still");
+    let later = cdp.eval("window.fogcast.canvasStats()").await;
+    assert_not_black(&later, "4 s later");
+    let diff = grid_diff(&first, &later);
+    eprintln!("browser (smokehall): 8x8 grid diff over 4 s with a still camera {diff:.2}");
+    assert!(
+        diff > 0.3,
+        "the still view did not change as the smoke drifted (grid diff {diff:.2})"
+    );
+    let m = metrics(addr).await;
+    for stage in [
+        "smoke_particles",
+        "smoke_shadows",
+        "smoke_proxies",
+        "smoke_raster",
+    ] {
+        let runs = metric(
+            &m,
+            "fogcast_stage_gpu_seconds_count",
+            &format!("stage=\"{stage}\""),
+        );
+        assert!(runs >= 1.0, "stage {stage} ran {runs} times:\n{m}");
+    }
+    server.shutdown().await.unwrap();
+}

@@ -206,21 +206,27 @@ fn smoke_sorts_integrates_and_sits_inside_the_fog() {
     assert!(peak > 0.4, "peak alpha {peak}");
     assert!(worst < 1e-3, "alpha off by {worst}");
 
-    // (3) Smoke changes the pixels it covers and no other pixel.
+    // (3) Smoke changes the pixels it covers; elsewhere only its shadow darkens.
     for (v, layer) in layers.iter().enumerate() {
-        let (mut covered, mut changed, mut clear) = (0, 0, 0);
+        let (mut covered, mut changed, mut clear, mut shadowed) = (0, 0, 0, 0);
         for (i, s) in layer.iter().enumerate() {
             let a = &out.images[v][i * 4..i * 4 + 4];
             let b = &bare_out.images[v][i * 4..i * 4 + 4];
             if s[3] == 0.0 {
+                // Where no particle is drawn the smoke can only take light away: its
+                // shadow (the shared smoke shadow maps) on the ground and the fog.
                 clear += 1;
-                assert_eq!(a, b, "viewer {v} pixel {i}: changed without smoke");
+                shadowed += usize::from(a != b);
+                assert!(
+                    a.iter().zip(b).all(|(x, y)| x <= y),
+                    "viewer {v} pixel {i}: brighter without smoke in front ({a:?} vs {b:?})"
+                );
             } else if s[3] > 0.1 {
                 covered += 1;
                 changed += usize::from(a != b);
             }
         }
-        println!("viewer {v}: {covered} pixels under smoke (α > 0.1), {changed} changed; {clear} clear, unchanged");
+        println!("viewer {v}: {covered} pixels under smoke (α > 0.1), {changed} changed; {clear} clear, {shadowed} of them in its shadow (darker)");
         assert!(
             covered >= 8 && clear > 500,
             "{covered} covered, {clear} clear"
@@ -231,7 +237,10 @@ fn smoke_sorts_integrates_and_sits_inside_the_fog() {
     // (4) Through 2 m of absorbing fog (σa 0.5) the smoke's premultiplied colour is the
     // clear view's times the fog's transmittance in front of it (g = 0 and a sun from
     // straight above: the particle looks the same from either side).
-    let (mut n, mut worst_t) = (0, 0f64);
+    // Per pixel the two views cross the particle along different rays, and the smoke's
+    // self-shadowing (the shared smoke shadow maps) differs along them; summed over the
+    // particle the views match (the sun is straight above, the views mirror each other).
+    let (mut n, mut clear_sum, mut fog_sum, mut expect_sum) = (0, 0f64, 0f64, 0f64);
     for y in 0..H {
         for x in 0..W {
             let i = (x + y * W) as usize;
@@ -241,8 +250,9 @@ fn smoke_sorts_integrates_and_sits_inside_the_fog() {
             }
             let dir = pixel_ray(&cams[1], x, y);
             let expect = (-0.5 * 2.0 / dir.z.abs()).exp();
-            let got = f64::from(fog_s[1]) / f64::from(clear_s[1]);
-            worst_t = worst_t.max((got / expect - 1.0).abs());
+            clear_sum += f64::from(clear_s[1]);
+            fog_sum += f64::from(fog_s[1]);
+            expect_sum += expect * f64::from(clear_s[1]);
             n += 1;
             assert!(
                 (fog_s[3] - clear_s[3]).abs() < 2e-3,
@@ -250,8 +260,10 @@ fn smoke_sorts_integrates_and_sits_inside_the_fog() {
             );
         }
     }
+    let worst_t = (fog_sum / expect_sum - 1.0).abs();
     println!(
-        "fog in front: {n} pixels, transmittance e^-1 ≈ 0.368, worst relative error {worst_t:.3}"
+        "fog in front: {n} pixels, transmittance e^-1 ≈ 0.368, summed colour ratio {:.4}, relative error {worst_t:.3}",
+        fog_sum / clear_sum
     );
     assert!(n >= 8, "{n} pixels");
     assert!(worst_t < 0.05, "smoke behind fog off by {worst_t}");

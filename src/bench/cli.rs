@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 /// Flags of `fogcast bench`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchArgs {
-    /// Built-in scene (colonnade, street, islands, cloud), a scene .toml, or a .glb/.gltf file.
+    /// Built-in scene (colonnade, street, islands, cloud, chimney, smokehall), a scene .toml, or a .glb/.gltf file.
     #[arg(long, default_value = "colonnade")]
     pub scene: String,
     /// Viewer counts of the path scenario (viewers spread along the scene's camera loop).

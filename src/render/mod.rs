@@ -184,7 +184,9 @@ impl Renderer {
     /// Reads every light's smoke shadow map back as the last frame built it (None: no map
     /// for that light; for tests and tools).
     pub fn read_smoke_shadows(&self) -> anyhow::Result<Vec<Option<SmokeShadowMap>>> {
-        self.world.smoke_shadows.read(&self.world.ctx, &self.world.gpu)
+        self.world
+            .smoke_shadows
+            .read(&self.world.ctx, &self.world.gpu)
     }
 
     /// `smoke_transmittance(light, p)` (common.wgsl, what every stage multiplies into a

@@ -344,7 +344,7 @@ pub enum EmitterShape {
 
 /// A smoke emitter (issue 15): Gaussian particles (001 Eq. 9) born at a steady rate,
 /// moving in closed form (`crate::smoke::emitter::particles_at`). Parsed and simulated on
-/// the CPU; not rendered yet.
+/// the CPU and on the GPU; rendered by every mode.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EmitterDesc {
@@ -416,7 +416,7 @@ pub struct SceneDesc {
     /// Moving occluders (spinning boxes).
     #[serde(default, rename = "mover")]
     pub movers: Vec<MoverDesc>,
-    /// Smoke emitters (parsed and simulated on the CPU; not rendered yet).
+    /// Smoke emitters (simulated on the GPU, with a CPU twin; rendered by every mode).
     #[serde(default, rename = "emitter")]
     pub emitters: Vec<EmitterDesc>,
     /// Where viewers stand.

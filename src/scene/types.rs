@@ -166,7 +166,7 @@ pub struct Scene {
     /// Moving occluders (render space, at time 0); not in `mesh`.
     pub movers: Vec<Mover>,
     /// Smoke emitters, validated, `position` in render space (simulated on the CPU by
-    /// [`crate::smoke::emitter::particles_at`]; not rendered yet).
+    /// [`crate::smoke::emitter::particles_at`]; its GPU twin is src/render/smoke_particles.rs).
     pub emitters: Vec<super::EmitterDesc>,
 }
 

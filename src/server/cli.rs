@@ -12,7 +12,7 @@ pub struct ServeArgs {
     /// TOML config file (keys as in docs/protocol.md, "Server configuration").
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Built-in scene (colonnade, street, islands, cloud), a scene .toml, or a .glb/.gltf file [default: colonnade].
+    /// Built-in scene (colonnade, street, islands, cloud, chimney, smokehall), a scene .toml, or a .glb/.gltf file [default: colonnade].
     #[arg(long)]
     pub scene: Option<String>,
     /// Rendering mode.
