@@ -527,7 +527,7 @@ fn empty_smoke_changes_nothing() {
         (with.x - without.x).abs() > 1e-3,
         "the particle shows: {with} vs {without}"
     );
-    let variants: [(&str, fn(&mut fogcast::scene::EmitterDesc)); 3] = [
+    let variants: [(&str, EditEmitter); 3] = [
         ("max_particles 0", |e| e.max_particles = 0),
         ("u = 0", |e| {
             e.falloff_u = 0.0;
@@ -589,3 +589,6 @@ fn dense_particle_is_finite_lit_and_bounded() {
         }
     }
 }
+
+/// A change to a loaded emitter (what the format itself would refuse).
+type EditEmitter = fn(&mut fogcast::scene::EmitterDesc);
