@@ -52,7 +52,7 @@ bench: deps-runtime
 	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel_size_m=0.5' --variant 'fine:voxel_size_m=0.125' --variant 'layer:media_voxel_m=0.25' --overlap 10,25,50,75,100 --truth 1 $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene street --variant 'paper:demand=off,cache=off,shadow_map_px=0' $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene smokehall --modes shared,maps $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene smokehall --modes shared --time 14 $(BENCH_ARGS)
 
 test: deps
 	$(CARGO) test -- --test-threads=1

@@ -700,8 +700,9 @@ async fn chromium_shows_the_smoke_scene_moving() {
     let first = cdp.eval("window.fogcast.canvasStats()").await;
     assert_not_black(&first, "first shown");
     let camera = s["camera"].clone();
-    // The server's scene clock runs on: a few seconds later the cloud has drifted.
-    tokio::time::sleep(Duration::from_secs(4)).await;
+    // The server's scene clock runs on: 8 s later the cloud has grown from a few dozen
+    // particles to about a hundred and drifted.
+    tokio::time::sleep(Duration::from_secs(8)).await;
     let shown = u64_of(&cdp.stats().await, "shown");
     let later_stats = cdp
         .wait_stats("two more frames", |s| {
@@ -710,12 +711,28 @@ async fn chromium_shows_the_smoke_scene_moving() {
         .await;
     assert_eq!(later_stats["camera"], camera, "the camera stood still");
     let later = cdp.eval("window.fogcast.canvasStats()").await;
-    assert_not_black(&later, "4 s later");
+    assert_not_black(&later, "8 s later");
     let diff = grid_diff(&first, &later);
-    eprintln!("browser (smokehall): 8x8 grid diff over 4 s with a still camera {diff:.2}");
+    // The cloud covers part of the view: the cell that changed most, in luma (0–255).
+    let cells = |v: &Value| -> Vec<f64> {
+        v["grid"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let most = cells(&first)
+        .iter()
+        .zip(cells(&later))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    eprintln!(
+        "browser (smokehall): over 8 s with a still camera, 8x8 grid diff {diff:.2}, largest cell change {most:.1}"
+    );
     assert!(
-        diff > 0.3,
-        "the still view did not change as the smoke drifted (grid diff {diff:.2})"
+        most > 3.0,
+        "the still view did not change as the smoke drifted (largest cell change {most:.1})"
     );
     let m = metrics(addr).await;
     for stage in [
