@@ -54,12 +54,20 @@ fn smoke_tau(scale: f32, k: f32, b: f32, ta: f32, tb: f32) -> f32 {
 fn smoke_light(p: SmokeProxy, x: f32, pt: vec3f, dir: vec3f) -> vec3f {
     var l_in = vec3f(0.0);
     for (var li = 0u; li < min(frame.light_count, 8u); li++) {
-        let word = select(p.vis.y, p.vis.x, li < 4u);
-        let vis = f32((word >> (8u * (li & 3u))) & 255u) / 255.0;
+        let l = lights[li];
+        // Geometry: the shared shadow map at this node where the light has one (a
+        // particle straddling a sun shaft is lit only inside it), else the proxy pass's
+        // one shadow ray from the particle's centre.
+        var vis = 0.0;
+        if has_map(li) {
+            vis = map_visibility(li, l, pt, to_light(l, pt).xyz, 1.0);
+        } else {
+            let word = select(p.vis.y, p.vis.x, li < 4u);
+            vis = f32((word >> (8u * (li & 3u))) & 255u) / 255.0;
+        }
         if vis <= 0.0 {
             continue;
         }
-        let l = lights[li];
         let wl = -to_light(l, pt).xyz;
         l_in += light_radiance(l, pt) * hg_phase(p.g, dot(wl, -dir)) * (vis * light_transmittance(li, pt));
     }

@@ -348,7 +348,7 @@ impl Renderer {
                 stages.smoke.add_proxies(&ctx, e, s, maps, particles, ts)
             });
             f.each_set(Stage::SmokeRaster, |e, s| {
-                stages.smoke.add_raster(&ctx, e, s, particles, ts)
+                stages.smoke.add_raster(&ctx, e, s, maps, particles, ts)
             });
         }
         f.each_set(Stage::Composite, |e, s| {

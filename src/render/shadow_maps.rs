@@ -596,11 +596,19 @@ impl ShadowMaps {
         })
     }
 
-    /// Layout entries 10–14: the maps, their sampler and their projections.
+    /// Layout entries 10–14: the maps, their sampler and their projections (compute).
     fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 5] {
+        Self::layout_entries_for(wgpu::ShaderStages::COMPUTE)
+    }
+
+    /// Layout entries 10–14 for the shader stages `visibility` (the smoke raster reads the
+    /// maps in its fragment stage).
+    pub(crate) fn layout_entries_for(
+        visibility: wgpu::ShaderStages,
+    ) -> [wgpu::BindGroupLayoutEntry; 5] {
         let depth_array = |binding| wgpu::BindGroupLayoutEntry {
             binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
+            visibility,
             ty: wgpu::BindingType::Texture {
                 sample_type: wgpu::TextureSampleType::Depth,
                 view_dimension: wgpu::TextureViewDimension::D2Array,
@@ -612,11 +620,14 @@ impl ShadowMaps {
             depth_array(10),
             wgpu::BindGroupLayoutEntry {
                 binding: 11,
-                visibility: wgpu::ShaderStages::COMPUTE,
+                visibility,
                 ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
                 count: None,
             },
-            storage_entry(12, Read),
+            wgpu::BindGroupLayoutEntry {
+                visibility,
+                ..storage_entry(12, Read)
+            },
             depth_array(13),
             depth_array(14),
         ]

@@ -160,11 +160,7 @@ impl SmokeView {
             },
             count: None,
         };
-        let raster_layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("smoke raster"),
-                entries: &[
+        let mut raster_entries = vec![
                     storage_ro(0, wgpu::ShaderStages::FRAGMENT),
                     storage_ro(1, vf),
                     wgpu::BindGroupLayoutEntry {
@@ -184,7 +180,14 @@ impl SmokeView {
                         },
                         count: None,
                     },
-                ],
+        ];
+        // The shared shadow maps, read per Simpson node (geometric visibility).
+        raster_entries.extend(ShadowMaps::layout_entries_for(wgpu::ShaderStages::FRAGMENT));
+        let raster_layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("smoke raster"),
+                entries: &raster_entries,
             });
         let module = super::stage_shader(
             ctx,
@@ -192,6 +195,7 @@ impl SmokeView {
             &[
                 common,
                 include_str!("../../shaders/integrated_lookup.wgsl"),
+                include_str!("../../shaders/shadow_lookup.wgsl"),
                 include_str!("../../shaders/smoke_raster.wgsl"),
             ]
             .concat(),
@@ -286,6 +290,7 @@ impl SmokeView {
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
         set: &ViewerSet,
+        maps: &ShadowMaps,
         particles: u32,
         ts: &Timestamps,
     ) {
@@ -297,10 +302,11 @@ impl SmokeView {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
-        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("smoke raster"),
-            layout: &self.raster_layout,
-            entries: &[
+        let bg = maps.stage_bind_group(
+            ctx,
+            "smoke raster",
+            &self.raster_layout,
+            vec![
                 wgpu::BindGroupEntry {
                     binding: 0,
                     resource: vol.integrated.as_entire_binding(),
@@ -322,7 +328,7 @@ impl SmokeView {
                     }),
                 },
             ],
-        });
+        );
         let instances = particles.min(smoke.capacity);
         for i in 0..smoke.count {
             let layer = smoke.layers.create_view(&wgpu::TextureViewDescriptor {
