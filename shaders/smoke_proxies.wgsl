@@ -3,7 +3,8 @@
 // particles farther from the eye, ties broken by particle slot (a rank sort over tiles of
 // 64 keys in workgroup memory: one pass, deterministic, no padding) — and writes the
 // particle's proxy record at that rank in the viewer's list, with the visibility of every
-// light at the centre (shared shadow maps where the light has one, else a shadow ray).
+// light at the centre (shared shadow maps where the light has one, else a shadow ray); the
+// raster uses it for lights without a map and tests the maps per node itself.
 
 @group(1) @binding(0) var<storage, read_write> proxies: array<SmokeProxy>;
 // Bindings 10–14: the shadow maps (shaders/shadow_lookup.wgsl).
