@@ -161,25 +161,24 @@ impl SmokeView {
             count: None,
         };
         let mut raster_entries = vec![
-                    storage_ro(0, wgpu::ShaderStages::FRAGMENT),
-                    storage_ro(1, vf),
-                    wgpu::BindGroupLayoutEntry {
-                        visibility: wgpu::ShaderStages::FRAGMENT,
-                        ..texture_entry(2)
-                    },
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 3,
-                        visibility: vf,
-                        ty: wgpu::BindingType::Buffer {
-                            ty: wgpu::BufferBindingType::Uniform,
-                            has_dynamic_offset: true,
-                            min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<
-                                SmokeViewUniform,
-                            >()
-                                as u64),
-                        },
-                        count: None,
-                    },
+            storage_ro(0, wgpu::ShaderStages::FRAGMENT),
+            storage_ro(1, vf),
+            wgpu::BindGroupLayoutEntry {
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ..texture_entry(2)
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: 3,
+                visibility: vf,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(
+                        std::mem::size_of::<SmokeViewUniform>() as u64,
+                    ),
+                },
+                count: None,
+            },
         ];
         // The shared shadow maps, read per Simpson node (geometric visibility).
         raster_entries.extend(ShadowMaps::layout_entries_for(wgpu::ShaderStages::FRAGMENT));
