@@ -211,13 +211,19 @@ struct LightMedia {
 const SMOKE_MAP_NONE: u32 = 0u;        // no map this frame: the smoke casts no shadow
 const SMOKE_MAP_ORTHO: u32 = 1u;       // directional light: parallel rays along `axis`
 const SMOKE_MAP_PERSPECTIVE: u32 = 2u; // point or spot light: rays from `origin`
+const SMOKE_MAP_CUBE: u32 = 3u;        // a point or spot light close to the smoke: six faces
+// Map records per light in smoke_maps (a cube's six faces; other maps use the first).
+const SMOKE_MAPS_PER_LIGHT: u32 = 6u;
 
 // One light's smoke shadow map (SmokeMapGpu in src/render/gpu_types.rs), fitted to the
 // particles' bounding sphere. Orthographic: texel (x, y)'s ray starts at origin + (ex·e.x
 // + ey·e.y)·extent, e ∈ (−1, 1)² the texel centre, and runs along `axis`; depth is the
 // distance from the plane through `origin` across `axis`. Perspective: the ray from the
 // light `origin` along normalize(axis + (ex·e.x + ey·e.y)·extent) (extent: tangent of the
-// half angle); depth is the distance from the light.
+// half angle); depth is the distance from the light. Light li's maps are records
+// SMOKE_MAPS_PER_LIGHT·li + f: a cube (kind SMOKE_MAP_CUBE on record 0, which is also face
+// 0) has 90° perspective faces f in `cube_face` order, those that can see the smoke
+// flagged in `faces` (the others read 1).
 struct SmokeMap {
     origin: vec3f,
     kind: u32,
@@ -228,7 +234,7 @@ struct SmokeMap {
     ey: vec3f,
     px: u32,          // texels a side
     nodes: u32,       // nodes per texel (the `avsm_nodes` setting)
-    _pad0: u32,
+    faces: u32,       // SMOKE_MAP_CUBE: bit f set where face f holds a map
     _pad1: u32,
     _pad2: u32,
 }
@@ -855,6 +861,19 @@ fn unpack_rgba16(p: vec2u) -> vec4f {
     return vec4f(unpack2x16float(p.x), unpack2x16float(p.y));
 }
 
+// The cube face a point at `d` from the light falls on (`cube_face` in shadow_maps.rs):
+// the axis of d's largest component, + before −.
+fn cube_face(d: vec3f) -> u32 {
+    let a = abs(d);
+    if a.x >= a.y && a.x >= a.z {
+        return select(1u, 0u, d.x >= 0.0);
+    }
+    if a.y >= a.z {
+        return select(3u, 2u, d.y >= 0.0);
+    }
+    return select(5u, 4u, d.z >= 0.0);
+}
+
 // ---- Smoke shadows: adaptive volumetric shadow maps (seed 002) ----------------------
 
 // Where p falls in smoke map m: texel-space coordinate (texel centres at integers), the
@@ -928,9 +947,18 @@ fn smoke_transmittance(li: u32, p: vec3f) -> f32 {
     if frame.particle_count == 0u {
         return 1.0;
     }
-    let m = smoke_maps[li];
+    var m = smoke_maps[li * SMOKE_MAPS_PER_LIGHT];
     if m.kind == SMOKE_MAP_NONE {
         return 1.0;
+    }
+    if m.kind == SMOKE_MAP_CUBE {
+        let f = cube_face(p - m.origin);
+        if ((m.faces >> f) & 1u) == 0u {
+            return 1.0;
+        }
+        if f != 0u {
+            m = smoke_maps[li * SMOKE_MAPS_PER_LIGHT + f];
+        }
     }
     let c = smoke_map_coord(m, p);
     if !c.inside {

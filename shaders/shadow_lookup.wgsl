@@ -34,18 +34,6 @@ fn has_map(li: u32) -> bool {
     return map_info[li].scene.layer >= 0;
 }
 
-// The cube face a point at `d` from the light falls on (`cube_face` in shadow_maps.rs).
-fn cube_face(d: vec3f) -> u32 {
-    let a = abs(d);
-    if a.x >= a.y && a.x >= a.z {
-        return select(1u, 0u, d.x >= 0.0);
-    }
-    if a.y >= a.z {
-        return select(3u, 2u, d.y >= 0.0);
-    }
-    return select(5u, 4u, d.z >= 0.0);
-}
-
 // Shadow-map coordinates (uv, depth) of point `p` pushed `texels` of this map's texels
 // along the unit vector `away` (a surface's normal, or towards the light for a point in
 // the fog) to clear the map's depth steps. Surfaces use 3/4 of a texel, measured best on

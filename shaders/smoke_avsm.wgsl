@@ -1,10 +1,10 @@
 // The smoke's adaptive volumetric shadow maps (seed 002), built once per frame for every
 // viewer (world / light space; src/render/smoke_shadows.rs). One invocation per texel of
-// a light's map (z runs over lights): the GPU twin of `TransmittanceCurve::from_crossings`
+// a light's map (z runs over map records: SMOKE_MAPS_PER_LIGHT per light, a cube's faces): the GPU twin of `TransmittanceCurve::from_crossings`
 // in src/smoke/avsm.rs, node for node.
 //
 // 1. Every live particle whose proxy (a sphere of PROXY_RADIUS_PER_U·u) the texel's ray
-//    crosses goes into a private list sorted by the depth of its first inserted node, ties
+//    crosses at depth > 0 (clipped there) goes into a private list sorted by the depth of its first inserted node, ties
 //    by its place in `particles` (emitter by emitter, oldest first: the particle index).
 //    At most MAX_CROSSINGS are kept: past that the farthest (by that key) are dropped, so
 //    what lies behind the 64 nearest blobs of one ray casts no more shadow.
@@ -61,8 +61,14 @@ fn crossing_of(ray: SmokeRay, i: u32) -> Crossing {
         return c;
     }
     let half_chord = sqrt(r * r - h2);
+    // The ray starts at depth 0 (the light, or the orthographic map's plane upstream of
+    // all the smoke): a proxy behind it is on no point's way to the light, and one around
+    // it (a lamp inside the smoke) counts from the light on.
+    if b + half_chord <= 0.0 {
+        return c;
+    }
     c.hit = true;
-    c.entry = b - half_chord;
+    c.entry = max(b - half_chord, 0.0);
     c.exit = b + half_chord;
     c.b = b;
     c.h2 = h2;
@@ -181,12 +187,15 @@ fn insert_crossing(c: Crossing, max_nodes: u32) {
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3u) {
-    let li = gid.z;
-    if li >= frame.light_count {
+    // One map record per z: light gid.z / SMOKE_MAPS_PER_LIGHT, face gid.z % it.
+    if gid.z / SMOKE_MAPS_PER_LIGHT >= frame.light_count {
         return;
     }
-    let m = smoke_maps[li];
+    let m = smoke_maps[gid.z];
     if m.kind == SMOKE_MAP_NONE || gid.x >= m.px || gid.y >= m.px {
+        return;
+    }
+    if m.kind == SMOKE_MAP_CUBE && (m.faces & 1u) == 0u {
         return;
     }
     let ray = smoke_texel_ray(m, gid.xy);

@@ -61,7 +61,7 @@ fn toward_light(scene: &Scene, li: usize, p: DVec3) -> (DVec3, f64) {
 }
 
 /// The crossings of one texel's light ray (as `smoke_avsm.wgsl` finds them; proxy radius
-/// 1.5 u), in f64.
+/// 1.5 u, clipped at the ray's start), in f64.
 fn crossings(blobs: &[Blob], start: DVec3, dir: DVec3) -> Vec<LightRayCrossing> {
     let mut out = Vec::new();
     for (i, b) in blobs.iter().enumerate() {
@@ -73,14 +73,18 @@ fn crossings(blobs: &[Blob], start: DVec3, dir: DVec3) -> Vec<LightRayCrossing> 
             continue;
         }
         let half_chord = (r * r - h2).sqrt();
+        if along + half_chord <= 0.0 {
+            continue;
+        }
+        let entry = (along - half_chord).max(0.0);
         out.push(LightRayCrossing {
             particle_index: i as u32,
-            entry_m: along - half_chord,
+            entry_m: entry,
             exit_m: along + half_chord,
             particle: GaussianAlongRay {
                 sigma_per_m: b.sigma,
                 falloff_u_m: b.u,
-                centre_along_m: half_chord,
+                centre_along_m: along - entry,
                 centre_offset_sq_m2: h2,
             },
         });
@@ -130,7 +134,8 @@ fn load(text: &str) -> Arc<Scene> {
 }
 
 /// A static cloud (no velocity, spread, buoyancy or growth: the particles alive at a time
-/// stay where they are born) under a sun and a spot, no media.
+/// stay where they are born) under a sun and a spot, with a lamp inside it (a cube map),
+/// no media.
 const CLOUD: &str = r#"
 name = "smoke cloud"
 [render]
@@ -151,6 +156,10 @@ direction = [-4.0, -3.0, -2.0]
 intensity = 60.0
 inner_deg = 30.0
 outer_deg = 40.0
+[[light]]
+kind = "point"
+position = [0.4, 2.3, -0.2]
+intensity = 5.0
 [[mesh]]
 kind = "box"
 min = [-10.0, -0.5, -10.0]
@@ -170,7 +179,7 @@ seed = 3
 "#;
 
 /// GPU curves against the CPU twin `TransmittanceCurve::from_crossings` on ~300 texels of
-/// each light's map, GPU lookups (`smoke_transmittance`) against exact transmittance on
+/// each light's map (each face of the lamp's cube), GPU lookups (`smoke_transmittance`) against exact transmittance on
 /// 1,000 random light rays per light, then the stage's schedule: once per frame at 1 and
 /// 4 viewers with the same dispatch, none while nothing moved.
 #[test]
@@ -194,50 +203,57 @@ fn avsm_matches_cpu_twin_and_exact_transmittance_once_per_frame() {
     let blobs = blobs(&scene, TIME_S);
     assert!(blobs.len() > 40, "{} particles", blobs.len());
     let maps = r.read_smoke_shadows().unwrap();
-    assert_eq!(maps.len(), 2);
-    let kinds: Vec<_> = maps.iter().map(|m| m.as_ref().map(|m| m.kind)).collect();
+    assert_eq!(maps.len(), 3);
+    let kinds: Vec<Vec<_>> = maps
+        .iter()
+        .map(|m| m.iter().map(|m| m.kind).collect())
+        .collect();
     assert_eq!(
         kinds,
         [
-            Some(SmokeMapKind::Orthographic),
-            Some(SmokeMapKind::Perspective)
-        ]
+            vec![SmokeMapKind::Orthographic],
+            vec![SmokeMapKind::Perspective],
+            vec![SmokeMapKind::Perspective; 6],
+        ],
+        "a sun, a spot, a lamp inside the cloud (a cube)"
     );
     // 1. Node for node against the CPU twin.
-    for (li, map) in maps.iter().enumerate() {
-        let map: &SmokeShadowMap = map.as_ref().unwrap();
-        let covered: Vec<(u32, u32)> = (0..map.px)
-            .flat_map(|y| (0..map.px).map(move |x| (x, y)))
-            .filter(|(x, y)| map.curve(*x, *y)[0][0] < 1e30)
-            .collect();
-        assert!(covered.len() > 300, "light {li}: {} texels", covered.len());
-        let step = covered.len() / 300;
+    for (li, faces) in maps.iter().enumerate() {
         let (mut max_diff, mut sum, mut n) = (0.0_f64, 0.0, 0);
         let mut diffs = Vec::new();
-        for &(x, y) in covered.iter().step_by(step) {
-            let (start, dir) = map.texel_ray(x, y);
-            let hits = crossings(&blobs, start.as_dvec3(), dir.as_dvec3());
-            let cpu = TransmittanceCurve::from_crossings(nodes, &hits);
-            let gpu_nodes = map.curve(x, y);
-            let cn = cpu.nodes();
-            assert!(
-                !cn.is_empty(),
-                "light {li} texel {x},{y}: GPU has nodes, CPU none"
-            );
-            let (near, far) = (cn[0].depth_m - 0.1, cn[cn.len() - 1].depth_m + 0.1);
-            for k in 0..=16 {
-                let depth = near + (far - near) * f64::from(k) / 16.0;
-                let d = (gpu_curve_at(gpu_nodes, depth) - cpu.transmittance_at(depth)).abs();
-                max_diff = max_diff.max(d);
-                diffs.push(d);
-                sum += d;
-                n += 1;
+        let mut texels = 0;
+        for map in faces {
+            let map: &SmokeShadowMap = map;
+            let covered: Vec<(u32, u32)> = (0..map.px)
+                .flat_map(|y| (0..map.px).map(move |x| (x, y)))
+                .filter(|(x, y)| map.curve(*x, *y)[0][0] < 1e30)
+                .collect();
+            texels += covered.len();
+            let step = (covered.len() * faces.len() / 300).max(1);
+            for &(x, y) in covered.iter().step_by(step) {
+                let (start, dir) = map.texel_ray(x, y);
+                let hits = crossings(&blobs, start.as_dvec3(), dir.as_dvec3());
+                let cpu = TransmittanceCurve::from_crossings(nodes, &hits);
+                let gpu_nodes = map.curve(x, y);
+                let cn = cpu.nodes();
+                assert!(
+                    !cn.is_empty(),
+                    "light {li} texel {x},{y}: GPU has nodes, CPU none"
+                );
+                let (near, far) = (cn[0].depth_m - 0.1, cn[cn.len() - 1].depth_m + 0.1);
+                for k in 0..=16 {
+                    let depth = near + (far - near) * f64::from(k) / 16.0;
+                    let d = (gpu_curve_at(gpu_nodes, depth) - cpu.transmittance_at(depth)).abs();
+                    max_diff = max_diff.max(d);
+                    diffs.push(d);
+                    sum += d;
+                    n += 1;
+                }
             }
         }
+        assert!(texels > 300, "light {li}: {texels} texels");
         println!(
-            "light {li}: {} covered texels, GPU vs CPU twin on {} samples: max {max_diff:.2e}, mean {:.2e}",
-            covered.len(),
-            n,
+            "light {li}: {texels} covered texels, GPU vs CPU twin on {n} samples: max {max_diff:.2e}, mean {:.2e}",
             sum / f64::from(n)
         );
         diffs.sort_by(f64::total_cmp);
@@ -266,7 +282,7 @@ fn avsm_matches_cpu_twin_and_exact_transmittance_once_per_frame() {
     // 2. Lookups against exact transmittance: random points in the cloud's ball.
     let centre = blobs.iter().map(|b| b.centre).sum::<DVec3>() / blobs.len() as f64;
     let mut rng = Rng(15_002);
-    for li in 0..2 {
+    for li in 0..3 {
         let points: Vec<DVec3> = (0..1000).map(|_| rng.in_ball(centre, 1.5)).collect();
         let probe: Vec<(u32, Vec3)> = points.iter().map(|p| (li as u32, p.as_vec3())).collect();
         let got = r.probe_smoke_transmittance(&probe).unwrap();

@@ -251,6 +251,11 @@ pub(crate) const SMOKE_MAP_NONE: u32 = 0;
 pub(crate) const SMOKE_MAP_ORTHO: u32 = 1;
 /// A perspective map (point or spot light).
 pub(crate) const SMOKE_MAP_PERSPECTIVE: u32 = 2;
+/// A cube of six perspective faces (a point or spot light close to the smoke), on the
+/// light's first record, which is also face 0.
+pub(crate) const SMOKE_MAP_CUBE: u32 = 3;
+/// Map records per light (`SMOKE_MAPS_PER_LIGHT` in common.wgsl): a cube's six faces.
+pub(crate) const SMOKE_MAPS_PER_LIGHT: u32 = 6;
 
 /// One light's smoke shadow map (`SmokeMap` in common.wgsl; smoke_shadows.rs).
 #[repr(C)]
@@ -269,7 +274,9 @@ pub(crate) struct SmokeMapGpu {
     pub px: u32,
     /// Nodes per texel.
     pub nodes: u32,
-    pub _pad: [u32; 3],
+    /// [`SMOKE_MAP_CUBE`]: bit f set where face f holds a map.
+    pub faces: u32,
+    pub _pad: [u32; 2],
 }
 
 const _: () = assert!(std::mem::size_of::<SmokeMapGpu>() == 80);

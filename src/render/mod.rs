@@ -181,9 +181,9 @@ impl Renderer {
         Ok(Some((words, touched)))
     }
 
-    /// Reads every light's smoke shadow map back as the last frame built it (None: no map
-    /// for that light; for tests and tools).
-    pub fn read_smoke_shadows(&self) -> anyhow::Result<Vec<Option<SmokeShadowMap>>> {
+    /// Reads every light's smoke shadow maps back as the last frame built them (per light:
+    /// none, its one map, or its cube's built faces; for tests and tools).
+    pub fn read_smoke_shadows(&self) -> anyhow::Result<Vec<Vec<SmokeShadowMap>>> {
         self.world
             .smoke_shadows
             .read(&self.world.ctx, &self.world.gpu)

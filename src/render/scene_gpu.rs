@@ -2,6 +2,7 @@
 
 use super::gpu_types::{
     FrameGpu, LightGpu, LightMediaGpu, MediumGpu, ParticleGpu, SmokeMapGpu, ViewGpu, COUNTERS,
+    SMOKE_MAPS_PER_LIGHT,
 };
 use super::media_layer::{LayerBuffers, LayerPlan};
 use crate::gpu::Access::{Read, ReadWrite};
@@ -309,7 +310,9 @@ impl SceneGpu {
         )?;
         let smoke_maps = ctx.storage(
             "smoke shadow maps",
-            scene.lights.len().max(1) as u64 * std::mem::size_of::<SmokeMapGpu>() as u64,
+            scene.lights.len().max(1) as u64
+                * u64::from(SMOKE_MAPS_PER_LIGHT)
+                * std::mem::size_of::<SmokeMapGpu>() as u64,
             wgpu::BufferUsages::empty(),
         )?;
         if smoke_nodes > 0 {

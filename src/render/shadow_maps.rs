@@ -82,7 +82,7 @@ fn no_map() -> MapGpu {
 }
 
 /// The cube face a point at `d` from the light falls on: the axis of d's largest
-/// component, + before − (the shader's `cube_face` in shaders/shadow_lookup.wgsl).
+/// component, + before − (the shader's `cube_face` in shaders/common.wgsl).
 #[cfg(test)]
 fn cube_face(d: Vec3) -> usize {
     let a = d.abs();

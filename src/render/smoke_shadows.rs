@@ -11,11 +11,12 @@
 //! (depth from the plane upstream of the sphere), a perspective map of the cone around the
 //! sphere for a point or spot light (depth = distance from the light).
 //!
-//! **Point lights and spots near the smoke** (documented limitation): a single perspective
-//! map is used while the sphere lies within a 90° cone from the light (the light at least
-//! √2 radii from its centre). Closer — a lamp inside or beside the plume — would need a
-//! cube map; the light then gets no map (the smoke casts no shadow for it) and a warning
-//! is logged once per light.
+//! **Point lights and spots near the smoke**: a single perspective map is used while the
+//! sphere lies within a 90° cone from the light (the light at least √2 radii from its
+//! centre). Closer — a lamp inside or beside the plume — the light gets a cube: six 90°
+//! perspective faces around it (`cube_face` order, one texel of margin), of which only
+//! those whose frustum can meet the sphere are built; a lookup reads the face its point
+//! falls on. Every point and spot light therefore reserves six maps' nodes, a sun one.
 //!
 //! **Cache.** The maps are rebuilt only when the live particles (compared byte for byte)
 //! or a light changed since the last build; a static scene time and static lights cost no
@@ -40,12 +41,30 @@ const PROXY_RADIUS_PER_U: f32 = 1.5;
 /// bounding sphere lies within this half angle's tangent (45°: a 90° cone).
 const MAX_TAN_HALF: f32 = 1.0;
 
-/// Nodes of every light's map for `scene` (0: no emitter or no light, nothing allocated).
+/// Maps whose nodes a light reserves: one for a sun, a cube's six for a point or spot light.
+fn maps_reserved(directional: bool) -> u32 {
+    if directional {
+        1
+    } else {
+        SMOKE_MAPS_PER_LIGHT
+    }
+}
+
+/// Nodes of every light's maps for `scene` (0: no emitter or no light, nothing allocated).
 pub(crate) fn node_count(scene: &Scene, settings: &Settings) -> u64 {
     if super::scene_gpu::particle_capacity(scene) == 0 || scene.lights.is_empty() {
         return 0;
     }
-    scene.lights.len() as u64 * u64::from(settings.avsm_px).pow(2) * u64::from(settings.avsm_nodes)
+    let maps: u64 = scene
+        .lights
+        .iter()
+        .map(|l| {
+            u64::from(maps_reserved(
+                l.kind == crate::scene::LightKind::Directional,
+            ))
+        })
+        .sum();
+    maps * u64::from(settings.avsm_px).pow(2) * u64::from(settings.avsm_nodes)
 }
 
 /// How a light's smoke shadow map projects.
@@ -57,7 +76,8 @@ pub enum SmokeMapKind {
     Perspective,
 }
 
-/// One light's smoke shadow map as read back (for tests and tools).
+/// One smoke shadow map (a light's only map, or one face of its cube) as read back (for
+/// tests and tools).
 #[derive(Debug, Clone)]
 pub struct SmokeShadowMap {
     /// Orthographic or perspective.
@@ -109,17 +129,31 @@ fn basis(n: Vec3) -> (Vec3, Vec3) {
     (ex, n.cross(ex))
 }
 
-/// Each light's map fitted to `particles` (module header), and the lights that get none
-/// because the smoke is too close (bit per light).
+/// Forward of cube face `f` (`cube_face` order in common.wgsl: +x, −x, +y, −y, +z, −z).
+fn cube_axis(f: usize) -> Vec3 {
+    [
+        Vec3::X,
+        Vec3::NEG_X,
+        Vec3::Y,
+        Vec3::NEG_Y,
+        Vec3::Z,
+        Vec3::NEG_Z,
+    ][f]
+}
+
+/// Every light's map records ([`SMOKE_MAPS_PER_LIGHT`] per light) fitted to `particles`
+/// (module header), and the lights that got a cube (bit per light).
 pub(crate) fn fit(
     particles: &[ParticleGpu],
     lights: &[LightGpu],
     px: u32,
     nodes: u32,
 ) -> (Vec<SmokeMapGpu>, u32) {
+    let per_light = SMOKE_MAPS_PER_LIGHT as usize;
+    let mut maps = vec![SmokeMapGpu::default(); lights.len() * per_light];
     let live: Vec<&ParticleGpu> = particles.iter().filter(|p| p.falloff_u > 0.0).collect();
     if live.is_empty() {
-        return (vec![SmokeMapGpu::default(); lights.len()], 0);
+        return (maps, 0);
     }
     let (lo, hi) = live.iter().fold(
         (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
@@ -138,51 +172,83 @@ pub(crate) fn fit(
     // One texel of margin on every side.
     let margin = (px as f32 + 2.0) / px as f32;
     let texels = px * px * nodes;
-    let mut too_close = 0;
-    let maps = lights
-        .iter()
-        .enumerate()
-        .map(|(i, l)| {
-            let mut m = SmokeMapGpu {
-                offset: i as u32 * texels,
-                px,
-                nodes,
-                ..Default::default()
-            };
-            if l.kind == crate::scene::LightKind::Directional.gpu_code() {
-                let axis = Vec3::from(l.direction).normalize();
-                let (ex, ey) = basis(axis);
-                m.kind = SMOKE_MAP_ORTHO;
-                m.origin = (centre - axis * radius).to_array();
-                m.axis = axis.to_array();
-                m.ex = ex.to_array();
-                m.ey = ey.to_array();
-                m.extent = radius * margin;
-                return m;
-            }
-            let pos = Vec3::from(l.position);
-            let d = (centre - pos).length();
-            let tan_half = if d > radius {
-                radius / (d * d - radius * radius).sqrt() * margin
-            } else {
-                f32::INFINITY
-            };
-            if tan_half > MAX_TAN_HALF {
-                too_close |= 1 << i;
-                return m;
-            }
+    // A cube face's frustum lies within this angle of its axis (the corner, with margin).
+    let face_half_diagonal = (std::f32::consts::SQRT_2 * margin).atan();
+    let mut cubes = 0;
+    let mut first_map = 0;
+    for (i, l) in lights.iter().enumerate() {
+        let directional = l.kind == crate::scene::LightKind::Directional.gpu_code();
+        let records = &mut maps[i * per_light..(i + 1) * per_light];
+        for (f, m) in records.iter_mut().enumerate() {
+            m.offset = (first_map + f as u32) * texels;
+            m.px = px;
+            m.nodes = nodes;
+        }
+        first_map += maps_reserved(directional);
+        if directional {
+            let axis = Vec3::from(l.direction).normalize();
+            let (ex, ey) = basis(axis);
+            let m = &mut records[0];
+            m.kind = SMOKE_MAP_ORTHO;
+            m.origin = (centre - axis * radius).to_array();
+            m.axis = axis.to_array();
+            m.ex = ex.to_array();
+            m.ey = ey.to_array();
+            m.extent = radius * margin;
+            continue;
+        }
+        let pos = Vec3::from(l.position);
+        let d = (centre - pos).length();
+        let tan_half = if d > radius {
+            radius / (d * d - radius * radius).sqrt() * margin
+        } else {
+            f32::INFINITY
+        };
+        if tan_half <= MAX_TAN_HALF {
             let axis = (centre - pos) / d;
             let (ex, ey) = basis(axis);
+            let m = &mut records[0];
             m.kind = SMOKE_MAP_PERSPECTIVE;
             m.origin = pos.to_array();
             m.axis = axis.to_array();
             m.ex = ex.to_array();
             m.ey = ey.to_array();
             m.extent = tan_half;
-            m
-        })
-        .collect();
-    (maps, too_close)
+            continue;
+        }
+        // A cube: the faces whose frustum can meet the sphere (all of them from inside).
+        cubes |= 1 << i;
+        let sphere_half_angle = if d > radius {
+            (radius / d).asin()
+        } else {
+            std::f32::consts::PI
+        };
+        let mut faces = 0;
+        for (f, m) in records.iter_mut().enumerate() {
+            let axis = cube_axis(f);
+            let off_axis = if d > 0.0 {
+                ((centre - pos) / d).dot(axis).clamp(-1.0, 1.0).acos()
+            } else {
+                0.0
+            };
+            let sees = off_axis <= face_half_diagonal + sphere_half_angle;
+            // Face 0 is the cube's header: its geometry is needed by every lookup.
+            if !sees && f != 0 {
+                continue;
+            }
+            faces |= u32::from(sees) << f;
+            let (ex, ey) = basis(axis);
+            m.kind = SMOKE_MAP_PERSPECTIVE;
+            m.origin = pos.to_array();
+            m.axis = axis.to_array();
+            m.ex = ex.to_array();
+            m.ey = ey.to_array();
+            m.extent = margin;
+        }
+        records[0].kind = SMOKE_MAP_CUBE;
+        records[0].faces = faces;
+    }
+    (maps, cubes)
 }
 
 /// The build stage and what it knows of the maps' freshness.
@@ -199,8 +265,8 @@ pub(crate) struct SmokeShadows {
     built_from: Option<Vec<ParticleGpu>>,
     /// This frame rebuilds the maps.
     pending: bool,
-    /// Lights already warned about (bit per light).
-    warned: u32,
+    /// Lights whose maps are cubes (bit per light), to log when that changes.
+    cubes: u32,
 }
 
 impl SmokeShadows {
@@ -231,7 +297,7 @@ impl SmokeShadows {
             enabled: node_count(scene, settings) > 0,
             built_from: None,
             pending: false,
-            warned: 0,
+            cubes: 0,
         }
     }
 
@@ -260,19 +326,14 @@ impl SmokeShadows {
         if same && dirty_lights == 0 {
             return;
         }
-        let (maps, too_close) = fit(particles, lights, self.px, self.nodes);
-        for i in 0..lights.len() {
-            if too_close & !self.warned & (1 << i) != 0 {
-                tracing::warn!(
-                    light = i,
-                    "smoke shadows: the smoke is within a 90° cone's reach of this point or \
-                     spot light (closer than √2 of its bounding radius); a single perspective \
-                     map cannot cover it and cube maps are not implemented, so the smoke \
-                     casts no shadow for this light"
-                );
-            }
+        let (maps, cubes) = fit(particles, lights, self.px, self.nodes);
+        if cubes != self.cubes {
+            tracing::debug!(
+                cubes = format!("{cubes:#b}"),
+                "smoke shadows: lights mapped with a cube (the smoke within √2 radii of them)"
+            );
+            self.cubes = cubes;
         }
-        self.warned |= too_close;
         ctx.queue
             .write_buffer(&gpu.smoke_maps, 0, bytemuck::cast_slice(&maps));
         self.built_from = Some(particles.to_vec());
@@ -280,7 +341,11 @@ impl SmokeShadows {
     }
 
     pub(crate) fn workgroups(&self) -> [u32; 3] {
-        [self.px.div_ceil(8), self.px.div_ceil(8), self.lights]
+        [
+            self.px.div_ceil(8),
+            self.px.div_ceil(8),
+            self.lights * SMOKE_MAPS_PER_LIGHT,
+        ]
     }
 
     /// Records the build when `prepare` asked for one; false (nothing recorded) otherwise.
@@ -304,44 +369,50 @@ impl SmokeShadows {
         true
     }
 
-    /// Reads every light's map back (None: the light has no map).
+    /// Reads every light's maps back: none, its one map, or its cube's built faces.
     pub(crate) fn read(
         &self,
         ctx: &GpuContext,
         gpu: &SceneGpu,
-    ) -> anyhow::Result<Vec<Option<SmokeShadowMap>>> {
+    ) -> anyhow::Result<Vec<Vec<SmokeShadowMap>>> {
         if !self.enabled {
-            return Ok(vec![None; self.lights as usize]);
+            return Ok(vec![Vec::new(); self.lights as usize]);
         }
         let headers: Vec<SmokeMapGpu> =
             bytemuck::pod_collect_to_vec(&ctx.read_buffer(&gpu.smoke_maps)?);
         let nodes: Vec<[f32; 2]> =
             bytemuck::pod_collect_to_vec(&ctx.read_buffer(&gpu.smoke_nodes)?);
+        let map = |h: &SmokeMapGpu, kind| {
+            let at = h.offset as usize;
+            let len = (h.px * h.px * h.nodes) as usize;
+            SmokeShadowMap {
+                kind,
+                origin: h.origin.into(),
+                axis: h.axis.into(),
+                ex: h.ex.into(),
+                ey: h.ey.into(),
+                extent: h.extent,
+                px: h.px,
+                nodes_per_texel: h.nodes,
+                nodes: nodes[at..at + len].to_vec(),
+            }
+        };
         Ok(headers
-            .iter()
+            .chunks(SMOKE_MAPS_PER_LIGHT as usize)
             .take(self.lights as usize)
-            .map(|h| {
-                if h.kind == SMOKE_MAP_NONE {
-                    return None;
+            .map(|records| match records[0].kind {
+                SMOKE_MAP_ORTHO => vec![map(&records[0], SmokeMapKind::Orthographic)],
+                SMOKE_MAP_PERSPECTIVE => vec![map(&records[0], SmokeMapKind::Perspective)],
+                SMOKE_MAP_CUBE => records
+                    .iter()
+                    .enumerate()
+                    .filter(|(f, _)| records[0].faces & (1 << f) != 0)
+                    .map(|(_, h)| map(h, SmokeMapKind::Perspective))
+                    .collect(),
+                other => {
+                    debug_assert_eq!(other, SMOKE_MAP_NONE, "unknown smoke map kind");
+                    Vec::new()
                 }
-                let kind = match h.kind {
-                    SMOKE_MAP_ORTHO => SmokeMapKind::Orthographic,
-                    SMOKE_MAP_PERSPECTIVE => SmokeMapKind::Perspective,
-                    _ => return None,
-                };
-                let at = h.offset as usize;
-                let len = (h.px * h.px * h.nodes) as usize;
-                Some(SmokeShadowMap {
-                    kind,
-                    origin: h.origin.into(),
-                    axis: h.axis.into(),
-                    ex: h.ex.into(),
-                    ey: h.ey.into(),
-                    extent: h.extent,
-                    px: h.px,
-                    nodes_per_texel: h.nodes,
-                    nodes: nodes[at..at + len].to_vec(),
-                })
             })
             .collect())
     }
@@ -412,7 +483,7 @@ mod tests {
     }
 
     #[test]
-    fn maps_fit_the_smoke_and_close_lights_get_none() {
+    fn maps_fit_the_smoke_and_close_lights_get_cubes() {
         let ps = [
             particle([0.0, 2.0, 0.0], 0.5),
             particle([1.0, 2.0, 0.0], 0.5),
@@ -421,13 +492,26 @@ mod tests {
             light(0, [0.0; 3], [0.0, -1.0, 0.0]),
             light(1, [0.5, 10.0, 0.0], [0.0, -1.0, 0.0]),
             light(2, [0.5, 2.5, 0.0], [0.0, -1.0, 0.0]),
+            light(1, [1.9, 2.0, 0.0], [0.0, -1.0, 0.0]),
         ];
-        let (maps, close) = fit(&ps, &lights, 32, 8);
-        assert_eq!(close, 0b100);
+        let (maps, cubes) = fit(&ps, &lights, 32, 8);
+        let per = SMOKE_MAPS_PER_LIGHT as usize;
+        assert_eq!(maps.len(), 4 * per);
+        assert_eq!(cubes, 0b1100);
         assert_eq!(maps[0].kind, SMOKE_MAP_ORTHO);
-        assert_eq!(maps[1].kind, SMOKE_MAP_PERSPECTIVE);
-        assert_eq!(maps[2].kind, SMOKE_MAP_NONE);
-        assert_eq!(maps[1].offset, 32 * 32 * 8);
+        assert!(maps[1..per].iter().all(|m| m.kind == SMOKE_MAP_NONE));
+        assert_eq!(maps[per].kind, SMOKE_MAP_PERSPECTIVE);
+        // A sun reserves one map, a point or spot light six.
+        assert_eq!(maps[per].offset, 32 * 32 * 8);
+        assert_eq!(maps[2 * per].offset, 7 * 32 * 32 * 8);
+        // Inside the smoke's sphere: every face.
+        assert_eq!(maps[2 * per].kind, SMOKE_MAP_CUBE);
+        assert_eq!(maps[2 * per].faces, 0b11_1111);
+        // Beside it (on +x, the smoke towards −x): not the +x face.
+        let beside = &maps[3 * per..4 * per];
+        assert_eq!(beside[0].kind, SMOKE_MAP_CUBE);
+        assert_eq!(beside[0].faces & 1, 0, "{:#b}", beside[0].faces);
+        assert_ne!(beside[0].faces & 0b10, 0);
         // Every proxy lies inside the orthographic map's square and depth ≥ 0.
         let m = maps[0];
         for p in &ps {
@@ -436,6 +520,28 @@ mod tests {
             assert!(d.dot(Vec3::from(m.ex)).abs() + r <= m.extent);
             assert!(d.dot(Vec3::from(m.ey)).abs() + r <= m.extent);
             assert!(d.dot(Vec3::from(m.axis)) - r >= 0.0);
+        }
+        // Every direction from a cube's light lands inside the face `cube_face` picks.
+        let cube = &maps[2 * per..3 * per];
+        for k in 0..2000 {
+            let t = k as f32 * 0.618_034;
+            let z = (k as f32 / 1000.0) - 1.0;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let dir = Vec3::new(r * (t * 6.283).cos(), z, r * (t * 6.283).sin());
+            let a = dir.abs();
+            let f = if a.x >= a.y && a.x >= a.z {
+                usize::from(dir.x < 0.0)
+            } else if a.y >= a.z {
+                2 + usize::from(dir.y < 0.0)
+            } else {
+                4 + usize::from(dir.z < 0.0)
+            };
+            let m = &cube[f];
+            let along = dir.dot(Vec3::from(m.axis));
+            assert!(along > 0.0);
+            let e = Vec3::new(dir.dot(Vec3::from(m.ex)), dir.dot(Vec3::from(m.ey)), 0.0)
+                / (along * m.extent);
+            assert!(e.x.abs() < 1.0 && e.y.abs() < 1.0, "{dir}: face {f}, {e}");
         }
         let (none, _) = fit(&[], &lights, 32, 8);
         assert!(none.iter().all(|m| m.kind == SMOKE_MAP_NONE));
