@@ -37,6 +37,7 @@ mod world;
 
 pub use gpu_types::ParticleGpu;
 pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
+pub(crate) use scene_gpu::particle_capacity;
 pub use settings::{Mode, Settings};
 pub use shared_grid::{GridUpdate, SharedShadowGrid};
 pub use smoke_particles::cpu_particles;

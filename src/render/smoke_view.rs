@@ -47,6 +47,12 @@ pub(crate) struct SmokeBuffers {
     count: u32,
 }
 
+/// Smoke bytes per viewer of `pixels` with room for `capacity` particles: its proxy list
+/// and its smoke layer.
+pub(crate) fn bytes_per_viewer(capacity: u32, pixels: u64) -> u64 {
+    u64::from(capacity.max(1)) * SMOKE_PROXY_BYTES + pixels * SMOKE_TEXEL_BYTES
+}
+
 impl SmokeBuffers {
     pub(crate) fn new(
         ctx: &GpuContext,
@@ -94,7 +100,7 @@ impl SmokeBuffers {
 
     /// Bytes per viewer: its proxy list and its smoke layer.
     pub(crate) fn bytes_per_viewer(&self, pixels: u64) -> u64 {
-        u64::from(self.capacity) * SMOKE_PROXY_BYTES + pixels * SMOKE_TEXEL_BYTES
+        bytes_per_viewer(self.capacity, pixels)
     }
 
     /// Writes every viewer's raster uniforms (view-projections in slot order).

@@ -95,19 +95,28 @@ pub fn largest_binding(
 const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 8 + 4 + 4;
 
 /// GPU memory of [`ViewerVolumes`] for `count` views of `width`×`height` under
-/// `settings`: every stacked buffer and the G-buffer (what the server's admission budget
-/// adds up over all view sizes).
+/// `settings` in a scene holding at most `smoke_particles` particles
+/// ([`particle_capacity`](super::scene_gpu::particle_capacity), 0 without emitters):
+/// every stacked buffer, the G-buffer and the smoke's proxy lists and layers (what the
+/// server's admission budget adds up over all view sizes).
 pub fn viewer_memory_bytes(
     settings: &super::Settings,
     count: usize,
     width: u32,
     height: u32,
+    smoke_particles: u32,
 ) -> u64 {
     let buffers: u64 = planned_sizes(settings, count, width, height)
         .iter()
         .map(|(_, bytes)| bytes.max(&16).next_multiple_of(16))
         .sum();
-    buffers + count as u64 * width as u64 * height as u64 * GBUFFER_BYTES_PER_PIXEL
+    let pixels = width as u64 * height as u64;
+    let smoke = if smoke_particles > 0 {
+        super::smoke_view::bytes_per_viewer(smoke_particles, pixels)
+    } else {
+        0
+    };
+    buffers + count as u64 * (pixels * GBUFFER_BYTES_PER_PIXEL + smoke)
 }
 
 /// Dispatch sizes of the per-viewer stages, computed once per allocation.

@@ -25,6 +25,9 @@ pub(crate) struct Budget {
     pub(crate) max_pixels_per_frame: u64,
     /// GPU memory of all views' volumes and G-buffers, bytes.
     pub(crate) max_view_memory_bytes: u64,
+    /// The scene's smoke particle capacity (0 without emitters): every view holds a proxy
+    /// list of that many and a smoke layer.
+    pub(crate) smoke_particles: u32,
 }
 
 /// What is rendered now: views per view size.
@@ -69,7 +72,9 @@ impl Budget {
         *sizes.entry((w, h)).or_default() += spec.views as u64;
         let memory: u64 = sizes
             .iter()
-            .map(|(&(sw, sh), &n)| viewer_memory_bytes(&self.settings, n as usize, sw, sh))
+            .map(|(&(sw, sh), &n)| {
+                viewer_memory_bytes(&self.settings, n as usize, sw, sh, self.smoke_particles)
+            })
             .sum();
         if memory > self.max_view_memory_bytes {
             return Some(format!(
@@ -158,6 +163,7 @@ mod tests {
             max_binding_bytes: 128 << 20,
             max_pixels_per_frame: u64::MAX,
             max_view_memory_bytes: u64::MAX,
+            smoke_particles: 0,
         };
         // The numbers: five 1920×1080 views need 158.2 MiB of froxels.
         let (label, bytes) = largest_binding(&budget.settings, 5, 1920, 1080);
@@ -194,6 +200,7 @@ mod tests {
             max_binding_bytes: u64::MAX,
             max_pixels_per_frame: 1280 * 720 * 3 / 2,
             max_view_memory_bytes: u64::MAX,
+            smoke_particles: 0,
         };
         let mut used = Usage::default();
         used.add(&mono(1280, 720));
@@ -206,16 +213,20 @@ mod tests {
     fn views_memory_is_a_budget() {
         // One 1280×720 view: froxels and integrated 2 × 160×90×128×8 B, the frustum,
         // culling columns, output and a 32 B/px G-buffer: about 66 MiB.
-        let one = viewer_memory_bytes(&Settings::default(), 1, 1280, 720);
+        let one = viewer_memory_bytes(&Settings::default(), 1, 1280, 720, 0);
         assert!((60 << 20..72 << 20).contains(&one), "{one}");
         // Views of one size stack (the 16-byte history stub is one per batch).
-        let three = viewer_memory_bytes(&Settings::default(), 3, 1280, 720);
+        let three = viewer_memory_bytes(&Settings::default(), 3, 1280, 720, 0);
         assert!(3 * one - three <= 32, "{three} vs 3 × {one}");
+        // A smoke scene adds each view's proxy list (64 B a particle) and f16 RGBA layer.
+        let smoky = viewer_memory_bytes(&Settings::default(), 1, 1280, 720, 300);
+        assert_eq!(smoky - one, 300 * 64 + 1280 * 720 * 8);
         let budget = Budget {
             settings: Settings::default(),
             max_binding_bytes: u64::MAX,
             max_pixels_per_frame: u64::MAX,
             max_view_memory_bytes: one * 5 / 2,
+            smoke_particles: 0,
         };
         let mut used = Usage::default();
         used.add(&mono(1280, 720));

@@ -98,6 +98,7 @@ impl Server {
             max_binding_bytes: ctx.max_storage_binding,
             max_pixels_per_frame: config.max_pixels_per_frame,
             max_view_memory_bytes: config.max_view_memory_mib << 20,
+            smoke_particles: crate::render::particle_capacity(&scene),
         };
         let hub = Arc::new(Hub::new(config, scene, budget));
         let lost_hub = Arc::downgrade(&hub);
