@@ -97,9 +97,15 @@ struct SettingsArgs {
     /// Ray-march segments per pixel of mode `truth`.
     #[arg(long, default_value_t = TruthSettings::default().steps)]
     truth_steps: u32,
-    /// Primary rays per pixel of mode `truth`, stratified over the pixel and averaged.
+    /// Primary rays per pixel of mode `truth`, stratified over the pixel and averaged
+    /// (with `--truth-bounces`: paths per pixel).
     #[arg(long, default_value_t = TruthSettings::default().spp)]
     truth_spp: u32,
+    /// Mode `truth` with multiple scattering: path-trace light that scattered up to this
+    /// many times (media, smoke, surfaces), the sky as a light and no constant ambient
+    /// (0: single scattering).
+    #[arg(long, default_value_t = TruthSettings::default().bounces)]
+    truth_bounces: u32,
     #[command(flatten)]
     given: SettingsOverrides,
 }
@@ -273,6 +279,8 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
     let settings = TruthSettings {
         steps: a.settings.truth_steps,
         spp: a.settings.truth_spp,
+        bounces: a.settings.truth_bounces,
+        seed: u32::from(a.settings.truth_bounces > 0),
         ..TruthSettings::default()
     };
     anyhow::ensure!(
@@ -281,8 +289,14 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
         settings.steps
     );
     anyhow::ensure!(
-        (1..=1024).contains(&settings.spp),
-        "--truth-spp {}: must be 1..=1024",
+        settings.bounces <= 1024,
+        "--truth-bounces {}: must be 0..=1024",
+        settings.bounces
+    );
+    let max_spp = if settings.bounces > 0 { 1 << 20 } else { 1024 };
+    anyhow::ensure!(
+        (1..=max_spp).contains(&settings.spp),
+        "--truth-spp {}: must be 1..={max_spp}",
         settings.spp
     );
     let (images, counts) = render_truth(

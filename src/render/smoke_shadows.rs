@@ -527,7 +527,8 @@ mod tests {
             let t = k as f32 * 0.618_034;
             let z = (k as f32 / 1000.0) - 1.0;
             let r = (1.0 - z * z).max(0.0).sqrt();
-            let dir = Vec3::new(r * (t * 6.283).cos(), z, r * (t * 6.283).sin());
+            let phi = t * std::f32::consts::TAU;
+            let dir = Vec3::new(r * phi.cos(), z, r * phi.sin());
             let a = dir.abs();
             let f = if a.x >= a.y && a.x >= a.z {
                 usize::from(dir.x < 0.0)

@@ -186,6 +186,33 @@ impl Smoke {
         }
     }
 
+    /// Each group's extinction at `p` (the sum of its particles' Gaussians within reach),
+    /// for the groups that have some there.
+    pub(crate) fn extinction_at(&self, p: DVec3) -> Vec<(usize, f64)> {
+        let mut out = Vec::new();
+        for (gi, g) in self.groups.iter().enumerate() {
+            if (p - g.bound_centre).length_squared() > g.bound_radius * g.bound_radius {
+                continue;
+            }
+            let sigma: f64 = self.particles[g.range.clone()]
+                .iter()
+                .map(|q| {
+                    let l2 = (p - q.centre).length_squared();
+                    let reach = CUT_FALLOFF * q.falloff_u_m;
+                    if l2 > reach * reach {
+                        0.0
+                    } else {
+                        g.sigma_t * (-50.0 * l2 / (q.falloff_u_m * q.falloff_u_m)).exp()
+                    }
+                })
+                .sum();
+            if sigma > 0.0 {
+                out.push((gi, sigma));
+            }
+        }
+        out
+    }
+
     /// Where the ray `o + t·dir` (`dir` unit) crosses particles' cut-off balls within
     /// `[t0, t1]`, sorted by entry.
     pub(crate) fn windows(&self, o: DVec3, dir: DVec3, t0: f64, t1: f64) -> Vec<Window> {
