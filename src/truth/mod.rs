@@ -16,7 +16,9 @@
 //! noise-free height fog, by Gauss-Legendre quadrature of the density for noisy media
 //! and `[[volume]]` primitives (their analytic displaced-sphere density, at the ray's
 //! time, clipped to the ball of their outer radius).
-//! Ambient light is a constant, neither occluded nor dimmed.
+//! Ambient light is a constant, neither occluded nor dimmed. With
+//! [`TruthSettings::bounces`] > 0 the renderer path-traces multiple scattering instead,
+//! the sky as a light and no ambient ([`paths`]).
 //!
 //! The march covers only the part of that range inside the media's bounding box (no
 //! medium has density outside it), split into `steps` equal segments; each is sampled
