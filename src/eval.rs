@@ -33,8 +33,12 @@ pub struct EvalConfig {
     pub frames: u32,
     /// Ray-march steps of `truth`.
     pub truth_steps: u32,
-    /// Primary rays per pixel of `truth` (box filter over the pixel).
+    /// Primary rays per pixel of `truth` (box filter over the pixel); paths per pixel
+    /// with `truth_bounces`.
     pub truth_spp: u32,
+    /// Multiple scattering in `truth` (issue 16): path-trace up to this many
+    /// scatterings, the sky as a light and no ambient (0: single scattering).
+    pub truth_bounces: u32,
     /// Node spacings of the media transmittance volumes to compare besides `shared`'s
     /// default, metres (0: marched per sample).
     pub transmittance_voxels_m: Vec<f32>,
@@ -185,8 +189,14 @@ fn variant_name(s: &Settings, base: &Settings) -> String {
 /// Runs the whole evaluation and writes `eval.md`, `eval.csv`, `eval.json` and plots.
 pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<Vec<EvalRow>> {
     anyhow::ensure!(
-        (1..=1024).contains(&cfg.truth_spp),
-        "--truth-spp {}: must be 1..=1024",
+        cfg.truth_bounces <= 1024,
+        "--truth-bounces {}: must be 0..=1024",
+        cfg.truth_bounces
+    );
+    let max_spp = if cfg.truth_bounces > 0 { 1 << 20 } else { 1024 };
+    anyhow::ensure!(
+        (1..=max_spp).contains(&cfg.truth_spp),
+        "--truth-spp {}: must be 1..={max_spp}",
         cfg.truth_spp
     );
     std::fs::create_dir_all(&cfg.out)?;
@@ -205,6 +215,8 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
     let ts = TruthSettings {
         steps: cfg.truth_steps,
         spp: cfg.truth_spp,
+        bounces: cfg.truth_bounces,
+        seed: u32::from(cfg.truth_bounces > 0),
         ..TruthSettings::default()
     };
     let truth_started = std::time::Instant::now();
@@ -453,7 +465,7 @@ fn write_report(
     crate::output::write_json(&cfg.out.join("eval.json"), &rows)?;
     let md = format!(
         "# eval: {scene}\n\n`{cmd}`\n\n{n} viewer(s) at {w}×{h}, evaluated frame at t = {t:.2} s after {f} walk-in frame(s); \
-         truth: {steps} steps and {spp} ray(s)/pixel, {truth_rays} shadow rays, {truth_s:.1} s on the CPU. Times are GPU timestamps \
+         truth: {kind}, {truth_rays} shadow rays, {truth_s:.1} s on the CPU. Times are GPU timestamps \
          (median over the walk-in frames after the first) on `{adapter}`.\n\n\
          A variant is its mode and its settings that differ from the paper's method as published \
          (`{paper}` over `shared`'s defaults, {voxel} m voxels), as config files and bench \
@@ -467,8 +479,17 @@ fn write_report(
         h = cfg.height,
         t = cfg.time_s,
         f = cfg.frames,
-        steps = cfg.truth_steps,
-        spp = cfg.truth_spp,
+        kind = if cfg.truth_bounces > 0 {
+            format!(
+                "path-traced, up to {} scatterings (sky as a light, no ambient), {} paths/pixel",
+                cfg.truth_bounces, cfg.truth_spp
+            )
+        } else {
+            format!(
+                "{} steps and {} ray(s)/pixel",
+                cfg.truth_steps, cfg.truth_spp
+            )
+        },
         truth_s = truth_ms / 1e3,
         adapter = GpuContext::last_adapter_name(),
         table = t.to_markdown()

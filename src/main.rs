@@ -62,8 +62,14 @@ struct EvalArgs {
     truth_steps: u32,
     /// Primary rays per pixel of the truth renderer, stratified over the pixel and
     /// averaged (a box filter, as offline renderers report pixels); 1: the pixel centre.
+    /// With `--truth-bounces`: paths per pixel.
     #[arg(long, default_value_t = TruthSettings::default().spp)]
     truth_spp: u32,
+    /// Multiple scattering in the truth renderer: path-trace light that scattered up to
+    /// this many times (media, smoke, surfaces), the sky as a light and no constant
+    /// ambient (0: single scattering).
+    #[arg(long, default_value_t = TruthSettings::default().bounces)]
+    truth_bounces: u32,
     /// Node spacings of the shared media transmittance volumes to compare besides the
     /// default, metres (0: every froxel and pixel marches its shadow ray).
     #[arg(long, value_delimiter = ',', default_value = "0,0.25,1")]
@@ -350,6 +356,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         frames: a.frames,
         truth_steps: a.truth_steps,
         truth_spp: a.truth_spp,
+        truth_bounces: a.truth_bounces,
         transmittance_voxels_m: a.transmittance_voxels,
         time_s: a.time,
         depth_curves: a.depth_curves,
