@@ -4,7 +4,8 @@
 // in src/smoke/avsm.rs, node for node.
 //
 // 1. Every live particle whose proxy (a sphere of PROXY_RADIUS_PER_U·u) the texel's ray
-//    crosses at depth > 0 (clipped there) goes into a private list sorted by the depth of its first inserted node, ties
+//    crosses at depth > 0 (clipped there), with an optical depth along the whole line of
+//    at least NEGLIGIBLE_TAU, goes into a private list sorted by the depth of its first inserted node, ties
 //    by its place in `particles` (emitter by emitter, oldest first: the particle index).
 //    At most MAX_CROSSINGS are kept: past that the farthest (by that key) are dropped, so
 //    what lies behind the 64 nearest blobs of one ray casts no more shadow.
@@ -27,6 +28,11 @@ const PROXY_RADIUS_PER_U: f32 = 1.5;
 // Half-width of the inserted segment in units of u (two standard deviations).
 const INSERT_HALF_WIDTH_PER_U: f32 = 0.2;
 const SQRT_50: f32 = 7.0710678;
+// A crossing whose whole line integral σ√π/k·e^{−k²h²} is below this is not inserted: it
+// changes no transmittance by more than 1e-4, and big overlapping proxies (a plume's
+// older particles, 1.5 u ≈ 9 m) would otherwise fill the MAX_CROSSINGS slots with such
+// grazing crossings and drop the ones that shadow.
+const NEGLIGIBLE_TAU: f32 = 1e-4;
 
 var<private> keys: array<f32, 64>;
 var<private> ids: array<u32, 64>;
@@ -58,6 +64,10 @@ fn crossing_of(ray: SmokeRay, i: u32) -> Crossing {
     let b = dot(to_centre, ray.dir);
     let h2 = max(dot(to_centre, to_centre) - b * b, 0.0);
     if h2 >= r * r {
+        return c;
+    }
+    let k = SQRT_50 / p.falloff_u;
+    if sigma * sqrt(PI) / k * exp(-k * k * h2) < NEGLIGIBLE_TAU {
         return c;
     }
     let half_chord = sqrt(r * r - h2);

@@ -24,7 +24,10 @@
 //!
 //! **Crossing cap.** A texel keeps at most [`MAX_CROSSINGS`] particles, the nearest by
 //! their first inserted node; farther ones along that ray are dropped (they cast no
-//! shadow there).
+//! shadow there). Crossings whose optical depth along the whole line is below 10⁻⁴ are
+//! not counted: a plume's big old proxies (1.5 u, up to ~9 m) graze most rays with
+//! nothing, and used to fill the 64 slots so that the particles further along cast no
+//! shadow at all (chimney's lower plume was lit through).
 
 use super::gpu_types::*;
 use super::scene_gpu::SceneGpu;
