@@ -144,6 +144,18 @@ fn cube_axis(f: usize) -> Vec3 {
     ][f]
 }
 
+/// Makes `m` a perspective map from the light at `pos` around unit `axis`, `tan_half` the
+/// tangent of its half angle.
+fn perspective(m: &mut SmokeMapGpu, pos: Vec3, axis: Vec3, tan_half: f32) {
+    let (ex, ey) = basis(axis);
+    m.kind = SMOKE_MAP_PERSPECTIVE;
+    m.origin = pos.to_array();
+    m.axis = axis.to_array();
+    m.ex = ex.to_array();
+    m.ey = ey.to_array();
+    m.extent = tan_half;
+}
+
 /// Every light's map records ([`SMOKE_MAPS_PER_LIGHT`] per light) fitted to `particles`
 /// (module header), and the lights that got a cube (bit per light).
 pub(crate) fn fit(
@@ -208,15 +220,7 @@ pub(crate) fn fit(
             f32::INFINITY
         };
         if tan_half <= MAX_TAN_HALF {
-            let axis = (centre - pos) / d;
-            let (ex, ey) = basis(axis);
-            let m = &mut records[0];
-            m.kind = SMOKE_MAP_PERSPECTIVE;
-            m.origin = pos.to_array();
-            m.axis = axis.to_array();
-            m.ex = ex.to_array();
-            m.ey = ey.to_array();
-            m.extent = tan_half;
+            perspective(&mut records[0], pos, (centre - pos) / d, tan_half);
             continue;
         }
         // A cube: the faces whose frustum can meet the sphere (all of them from inside).
@@ -240,13 +244,7 @@ pub(crate) fn fit(
                 continue;
             }
             faces |= u32::from(sees) << f;
-            let (ex, ey) = basis(axis);
-            m.kind = SMOKE_MAP_PERSPECTIVE;
-            m.origin = pos.to_array();
-            m.axis = axis.to_array();
-            m.ex = ex.to_array();
-            m.ey = ey.to_array();
-            m.extent = margin;
+            perspective(m, pos, axis, margin);
         }
         records[0].kind = SMOKE_MAP_CUBE;
         records[0].faces = faces;
