@@ -11,6 +11,7 @@ use tokio_tungstenite::tungstenite::Message;
 
 const READERS: usize = 3;
 const PHASE: Duration = Duration::from_secs(3);
+const FPS: f64 = 10.0;
 
 /// Frames each viewer received during `PHASE`, and the phase's real length.
 async fn measure(viewers: &[Viewer]) -> (Vec<u64>, Duration) {
@@ -31,9 +32,11 @@ async fn measure(viewers: &[Viewer]) -> (Vec<u64>, Duration) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_client_that_never_reads_does_not_slow_the_others() {
     let config = ServerConfig {
-        // Uncapped: the render loop runs flat out, so any time the stalled client cost
-        // the render thread would show in the others' frame rate.
-        fps: 240.0,
+        // Capped well below what 4 small views sustain here (30-47 fps uncapped, varying
+        // run to run on a 2-core machine): a render thread that waited on the stalled
+        // client would stop once its buffers filled, which shows as frames missing
+        // against the cap, while the machine's own jitter does not decide the result.
+        fps: FPS,
         // A small kernel buffer fills after a few frames, so the stall shows quickly.
         send_buffer_bytes: 4096,
         stall_timeout_s: 8.0,
@@ -102,8 +105,12 @@ async fn a_client_that_never_reads_does_not_slow_the_others() {
         metric(&m, "fogcast_frame_slot_bytes", "")
     );
     assert!(
-        ratio >= 0.8,
-        "the other clients' frame rate fell to {ratio:.2} of what it was"
+        fps_without >= 0.8 * FPS,
+        "the readers got {fps_without:.1} fps of the {FPS} cap before the stall: the machine is too slow for this test"
+    );
+    assert!(
+        ratio >= 0.8 && fps_with >= 0.8 * FPS,
+        "the other clients' frame rate fell to {ratio:.2} of what it was ({fps_with:.1} of the {FPS} fps cap)"
     );
     for (i, (w, wo)) in with.iter().zip(&without).enumerate() {
         assert!(

@@ -1,19 +1,4 @@
 //! The render thread: the only owner of the wgpu device's work. Each frame it snapshots
-//! every session's latest poses, renders all views, and hands each session's images to
-//! the encoder pool. It never waits on a client: a session whose previous frame is still
-//! being encoded skips this one, and a frame nobody took is replaced (both counted).
-//!
-//! The renderer batches views of one size per call, while sessions may ask for
-//! different resolutions; so views are grouped by view size and each group is one
-//! `render` call (one submission with every view of that size) per frame. Each size has
-//! its own [`Renderer`] — its per-viewer volumes fit that size, so groups do not
-//! reallocate each other's volumes every frame — and the world-space grid is updated
-//! once per group. Clients that pick the same resolution therefore share everything.
-//! A new size's renderer is built on a builder thread; its views wait until it is ready
-//! while every other group renders on. A failed or panicking render call closes the
-//! sessions of that size only (`render_failed`); a panic elsewhere drops the frame.
-
-//! The render thread: the only owner of the wgpu device's work. Each frame it snapshots
 //! every session's latest poses, renders all of them in one call — one world (grid,
 //! shadow maps, transmittance) for every session whatever its view size, one submission —
 //! and hands each session's frame (its views already tiled in place) to the encoder pool.
