@@ -188,17 +188,8 @@ fn variant_name(s: &Settings, base: &Settings) -> String {
 
 /// Runs the whole evaluation and writes `eval.md`, `eval.csv`, `eval.json` and plots.
 pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<Vec<EvalRow>> {
-    anyhow::ensure!(
-        cfg.truth_bounces <= 1024,
-        "--truth-bounces {}: must be 0..=1024",
-        cfg.truth_bounces
-    );
-    let max_spp = if cfg.truth_bounces > 0 { 1 << 20 } else { 1024 };
-    anyhow::ensure!(
-        (1..=max_spp).contains(&cfg.truth_spp),
-        "--truth-spp {}: must be 1..={max_spp}",
-        cfg.truth_spp
-    );
+    let ts = TruthSettings::from_flags(cfg.truth_steps, cfg.truth_spp, cfg.truth_bounces);
+    ts.validate()?;
     std::fs::create_dir_all(&cfg.out)?;
     let scene = Arc::new(Scene::load(&cfg.scene)?);
     // The frame without fog or smoke: what the fog-region error masks are made from.
@@ -212,17 +203,12 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
     let cams = scene.camera.viewers(cfg.viewers, cfg.time_s);
 
     progress("truth (CPU): with media");
-    let ts = TruthSettings {
-        steps: cfg.truth_steps,
-        spp: cfg.truth_spp,
-        bounces: cfg.truth_bounces,
-        seed: u32::from(cfg.truth_bounces > 0),
-        ..TruthSettings::default()
-    };
     let truth_started = std::time::Instant::now();
     let (truth, truth_counts) =
         render_truth(&scene, &bvh, &cams, (w, h), cfg.time_s, ts, &|_, _| {});
     let truth_ms = truth_started.elapsed().as_secs_f64() * 1e3;
+    // The fog's contribution (with minus without) is compared too, so the frame without
+    // media is rendered by the same truth, path-traced when the one above is.
     progress("truth (CPU): without media");
     let (truth_bare, _) = render_truth(&bare, &bvh, &cams, (w, h), cfg.time_s, ts, &|_, _| {});
     let truth_frames = Frames {

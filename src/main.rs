@@ -282,29 +282,12 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let bvh = Bvh::build(&scene.mesh)?;
     let cameras = scene.camera.viewers(a.viewers, a.time);
-    let settings = TruthSettings {
-        steps: a.settings.truth_steps,
-        spp: a.settings.truth_spp,
-        bounces: a.settings.truth_bounces,
-        seed: u32::from(a.settings.truth_bounces > 0),
-        ..TruthSettings::default()
-    };
-    anyhow::ensure!(
-        (1..=65536).contains(&settings.steps),
-        "--truth-steps {}: must be 1..=65536",
-        settings.steps
+    let settings = TruthSettings::from_flags(
+        a.settings.truth_steps,
+        a.settings.truth_spp,
+        a.settings.truth_bounces,
     );
-    anyhow::ensure!(
-        settings.bounces <= 1024,
-        "--truth-bounces {}: must be 0..=1024",
-        settings.bounces
-    );
-    let max_spp = if settings.bounces > 0 { 1 << 20 } else { 1024 };
-    anyhow::ensure!(
-        (1..=max_spp).contains(&settings.spp),
-        "--truth-spp {}: must be 1..={max_spp}",
-        settings.spp
-    );
+    settings.validate()?;
     let (images, counts) = render_truth(
         scene,
         &bvh,

@@ -153,11 +153,18 @@ albedo = [0.6, 0.4, 0.2]
     let sun = DVec3::new(0.3, -1.0, 0.2).normalize();
     let e = f64::from(s.lights[0].radiance.x);
     let want = albedo * DVec3::new(0.2, 0.3, 0.4) + albedo / std::f64::consts::PI * e * (-sun.y);
+    let bvh = Bvh::build(&s.mesh).unwrap();
+    let cams: Vec<Camera> = s.camera.viewers(1, 0.0);
     for bounces in [1, 5] {
-        for c in render(&s, (4, 3), paths(bounces, 64)) {
+        let (img, counts) =
+            render_truth_radiance(&s, &bvh, &cams, (4, 3), 0.0, paths(bounces, 64), &|_, _| {});
+        for c in &img[0] {
             let err = (c.as_dvec3() / want - 1.0).abs().max_element();
             assert!(err < 2e-4, "{bounces} bounces: {c} vs {want}, {err:.2e}");
         }
+        // Every path meets the ground once (then leaves for the sky): one shadow ray to
+        // the sun each, counted as a surface ray.
+        assert_eq!((counts.surface_rays, counts.media_rays), (12 * 64, 0));
     }
 }
 

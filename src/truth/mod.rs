@@ -181,6 +181,42 @@ impl Default for TruthSettings {
     }
 }
 
+impl TruthSettings {
+    /// The settings for `--truth-steps`, `--truth-spp` and `--truth-bounces`: seeded (paths
+    /// jittered) when path tracing, the pixel-centre rays otherwise.
+    pub fn from_flags(steps: u32, spp: u32, bounces: u32) -> TruthSettings {
+        TruthSettings {
+            steps,
+            spp,
+            bounces,
+            seed: u32::from(bounces > 0),
+            ..TruthSettings::default()
+        }
+    }
+
+    /// An error naming the flag and value when a setting is out of range: steps
+    /// 1..=65536, bounces 0..=1024, and spp 1..=1024 (rays per pixel) or 1..=2²⁰ (paths).
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            (1..=65536).contains(&self.steps),
+            "--truth-steps {}: must be 1..=65536",
+            self.steps
+        );
+        anyhow::ensure!(
+            self.bounces <= 1024,
+            "--truth-bounces {}: must be 0..=1024",
+            self.bounces
+        );
+        let max_spp = if self.bounces > 0 { 1 << 20 } else { 1024 };
+        anyhow::ensure!(
+            (1..=max_spp).contains(&self.spp),
+            "--truth-spp {}: must be 1..={max_spp}",
+            self.spp
+        );
+        Ok(())
+    }
+}
+
 /// Shadow rays traced by one truth render.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct TruthCounts {
@@ -697,18 +733,9 @@ impl PixelContext<'_> {
         }
         let mut l_in = Vec3::from(self.scene.render.ambient);
         if m.scattering != Vec3::ZERO {
-            for l in &self.lights {
-                let radiance = light_radiance(l, p);
-                if radiance == Vec3::ZERO {
-                    continue;
-                }
-                *rays += 1;
-                if visible(self.bvh, l, p, self.max_ray_m) {
-                    let (ld, dist) = to_light(l, p, self.max_ray_m);
-                    let t = self.shadow_transmittance(p, ld, dist);
-                    l_in += radiance * hg_phase(m.g, (-ld).dot(-dir)) * t;
-                }
-            }
+            self.for_each_light(p, p, rays, |ld, light| {
+                l_in += light * hg_phase(m.g, ld.dot(dir));
+            });
         }
         Some((m.extinction, m.scattering * l_in + m.emission))
     }
@@ -722,29 +749,36 @@ impl PixelContext<'_> {
             return DVec3::ZERO;
         }
         let mut s = total * Vec3::from(self.scene.render.ambient).as_dvec3();
-        for l in &self.lights {
-            let radiance = light_radiance(l, x);
-            if radiance == Vec3::ZERO {
-                continue;
-            }
-            *rays += 1;
-            if !visible(self.bvh, l, x, self.max_ray_m) {
-                continue;
-            }
-            let (ld, dist) = to_light(l, x, self.max_ray_m);
-            let t = self.shadow_transmittance(x, ld, dist);
-            if t == 0.0 {
-                continue;
-            }
-            let cos = (-ld).dot(-dir);
-            let light = (radiance * t).as_dvec3();
+        self.for_each_light(x, x, rays, |ld, light| {
+            let (cos, light) = (ld.dot(dir), light.as_dvec3());
             for (g, sg) in self.smoke.groups().iter().zip(sigma_s) {
                 if *sg != DVec3::ZERO {
                     s += *sg * light * f64::from(hg_phase(g.g, cos));
                 }
             }
-        }
+        });
         s
+    }
+
+    /// Calls `f(direction to the light, V·T·L)` for every light that reaches `p` (its
+    /// radiance there, occlusion tested from `offset`, dimmed by the media and the smoke
+    /// from `p`), counting a shadow ray in `rays` for each light that could.
+    fn for_each_light(&self, p: Vec3, offset: Vec3, rays: &mut u64, mut f: impl FnMut(Vec3, Vec3)) {
+        for l in &self.lights {
+            let radiance = light_radiance(l, p);
+            if radiance == Vec3::ZERO {
+                continue;
+            }
+            *rays += 1;
+            if !visible(self.bvh, l, offset, self.max_ray_m) {
+                continue;
+            }
+            let (ld, dist) = to_light(l, p, self.max_ray_m);
+            let t = self.shadow_transmittance(p, ld, dist);
+            if t > 0.0 {
+                f(ld, radiance * t);
+            }
+        }
     }
 
     /// Single scattering along a ray that crosses smoke particles (`windows`, sorted by
@@ -1094,6 +1128,7 @@ pub fn render_truth_radiance(
                                     dir,
                                     settings.bounces,
                                     &mut rng,
+                                    (&mut mr, &mut sr),
                                 );
                             }
                             row.push(c / spp as f32);

@@ -32,7 +32,7 @@
 //! (`L = ε/σt·Σ_{k≤B} ω^k`), a sunlit ground under the sky (`albedo·(sky + E·cos/π)`),
 //! and `bounces = 1` against the single-scattering truth.
 
-use super::{light_radiance, to_light, visible, PixelContext};
+use super::PixelContext;
 use crate::scene::{hg_phase, sample_media, Ray};
 use glam::{DVec3, Vec3};
 use std::f64::consts::PI;
@@ -165,25 +165,9 @@ impl PixelContext<'_> {
         Some(0.5 * (lo + hi))
     }
 
-    /// Light from every light arriving at `p` (towards the lights: `V·T·L` each), with
-    /// the unit direction to it; `offset` is where the occlusion test starts.
-    fn lights_at(&self, p: Vec3, offset: Vec3) -> Vec<(DVec3, DVec3)> {
-        let mut out = Vec::new();
-        for l in &self.lights {
-            let radiance = light_radiance(l, p);
-            if radiance == Vec3::ZERO || !visible(self.bvh, l, offset, self.max_ray_m) {
-                continue;
-            }
-            let (ld, dist) = to_light(l, p, self.max_ray_m);
-            let t = self.shadow_transmittance(p, ld, dist);
-            if t > 0.0 {
-                out.push((ld.as_dvec3(), (radiance * t).as_dvec3()));
-            }
-        }
-        out
-    }
-
-    /// Linear radiance along one path from the eye through pixel direction `dir`.
+    /// Linear radiance along one path from the eye through pixel direction `dir`; the
+    /// next-event shadow rays are counted in `rays` (from media and smoke events, from
+    /// surfaces).
     pub(super) fn trace_path(
         &self,
         cam_pos: Vec3,
@@ -191,7 +175,9 @@ impl PixelContext<'_> {
         dir: Vec3,
         bounces: u32,
         rng: &mut PathRng,
+        rays: (&mut u64, &mut u64),
     ) -> Vec3 {
+        let (media_rays, surface_rays) = rays;
         let r = &self.scene.render;
         let sky = Vec3::from(r.sky).as_dvec3();
         let cos = dir.dot(cam_forward).max(1e-6);
@@ -222,9 +208,11 @@ impl PixelContext<'_> {
                     break;
                 }
                 scatterings += 1;
-                for (ld, light) in self.lights_at(p.as_vec3(), p.as_vec3()) {
-                    radiance += beta * e.phase_weighted(ld.dot(d)) * light / e.sigma_t;
-                }
+                let q = p.as_vec3();
+                self.for_each_light(q, q, media_rays, |ld, light| {
+                    let ld = ld.as_dvec3();
+                    radiance += beta * e.phase_weighted(ld.dot(d)) * light.as_dvec3() / e.sigma_t;
+                });
                 // A lobe by its share of σs, then the mixture's value over its pdf.
                 let shares: Vec<f64> = e.lobes.iter().map(|l| l.sigma_s.element_sum()).collect();
                 let total: f64 = shares.iter().sum();
@@ -278,12 +266,12 @@ impl PixelContext<'_> {
             ) / 255.0;
             let lift = n * (2e-3 + f64::from(t) * 2e-4);
             let offset = (p + lift).as_vec3();
-            for (ld, light) in self.lights_at(p.as_vec3(), offset) {
-                let ndl = n.dot(ld);
+            self.for_each_light(p.as_vec3(), offset, surface_rays, |ld, light| {
+                let ndl = n.dot(ld.as_dvec3());
                 if ndl > 0.0 {
-                    radiance += beta * albedo / PI * light * ndl;
+                    radiance += beta * albedo / PI * light.as_dvec3() * ndl;
                 }
-            }
+            });
             // Cosine-distributed: the Lambertian weight albedo·cos/π over pdf cos/π.
             let (xi_a, xi_b) = (rng.unit(), rng.unit());
             d = around(n, xi_a.sqrt(), xi_b);
