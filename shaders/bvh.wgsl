@@ -92,3 +92,60 @@ fn light_visible(l: Light, p: vec3f) -> bool {
     let eps = 1e-4 * (1.0 + length(p) * 0.01);
     return !occluded_with_movers(p, tl.xyz, eps, tl.w - eps);
 }
+
+// Möller–Trumbore's hit distance along d (−1 where the ray misses).
+fn ray_triangle_t(o: vec3f, d: vec3f, tri: BvhTriangle) -> f32 {
+    let p = cross(d, tri.e2.xyz);
+    let det = dot(tri.e1.xyz, p);
+    if abs(det) < 1e-12 {
+        return -1.0;
+    }
+    let inv = 1.0 / det;
+    let s = o - tri.v0.xyz;
+    let u = dot(s, p) * inv;
+    let q = cross(s, tri.e1.xyz);
+    let v = dot(d, q) * inv;
+    if u < 0.0 || u > 1.0 || v < 0.0 || u + v > 1.0 {
+        return -1.0;
+    }
+    return dot(tri.e2.xyz, q) * inv;
+}
+
+// The nearest static triangle on o + t·d, t in (t_min, t_max): (t, triangle index), or
+// (t_max, 0xffffffff) where none is.
+struct Hit {
+    t: f32,
+    tri: u32,
+}
+
+fn closest_hit(o: vec3f, d: vec3f, t_min: f32, t_max: f32) -> Hit {
+    var hit = Hit(t_max, 0xffffffffu);
+    let root = bvh_nodes[0];
+    if root.min.x > root.max.x {
+        return hit;
+    }
+    let inv_d = 1.0 / select(d, vec3f(1e-30), abs(d) < vec3f(1e-30));
+    var stack: array<u32, 64>;
+    var sp = 1u;
+    stack[0] = 0u;
+    while sp > 0u {
+        sp -= 1u;
+        let node = bvh_nodes[stack[sp]];
+        if !ray_box(o, inv_d, hit.t, node.min, node.max) {
+            continue;
+        }
+        if node.prim_count > 0u {
+            for (var i = 0u; i < node.prim_count; i++) {
+                let t = ray_triangle_t(o, d, bvh_tris[node.first_index + i]);
+                if t > t_min && t < hit.t {
+                    hit = Hit(t, node.first_index + i);
+                }
+            }
+        } else if sp + 2u <= 64u {
+            stack[sp] = node.first_index;
+            stack[sp + 1u] = node.first_index + 1u;
+            sp += 2u;
+        }
+    }
+    return hit;
+}

@@ -50,6 +50,12 @@ struct Frame {
     layer_node_words: u32,
     // Live smoke particles in `particles` this frame.
     particle_count: u32,
+    // The shared ambient grid (shaders/ambient_grid.wgsl, FLAG_SH_AMBIENT): the first
+    // probe's position, the probes' spacing, probes a side, and probes in all.
+    sh_min: vec3f,
+    sh_cell: f32,
+    sh_dims: vec3u,
+    sh_probes: u32,
 }
 
 // Frame.flags
@@ -65,6 +71,7 @@ const FLAG_MEDIA_T: u32 = 512u;  // transmittance toward lights from the shared 
 const FLAG_LAYER: u32 = 1024u;   // media marked `in_layer` are read from the world media layer
 const FLAG_MAPS: u32 = 2048u;    // mode `maps`: froxels read the shared shadow maps (no grid, no rays)
 const FLAG_LAYER_FULL: u32 = 4096u; // layer nodes hold σs, σt, emission and g (else one density)
+const FLAG_SH_AMBIENT: u32 = 8192u; // ambient light from the shared SH grid (else the constant `ambient`)
 
 struct View {
     view_proj: mat4x4f,
@@ -188,6 +195,12 @@ struct Particle {
 // per frame for every viewer (`smoke_transmittance` reads them).
 @group(0) @binding(13) var<storage, read_write> smoke_nodes: array<vec2f>;
 @group(0) @binding(14) var<storage, read> smoke_maps: array<SmokeMap>;
+// The shared ambient grid: per probe five vec4f (order-2 SH of the radiance arriving there,
+// red, green, blue: (L00, L1−1, L10, L11) each; then (valid weight, free distance +x, −x,
+// +y) and (−y, +z, −z, 0): how far the probe sees along each axis before geometry) for
+// the accumulated grid every stage reads, then as many for this frame's estimate
+// (ambient_grid.rs).
+@group(0) @binding(15) var<storage, read_write> ambient_sh: array<vec4f>;
 
 // Light i's transmittance volume: dims.x·dims.y columns of dims.z nodes `spacing` apart,
 // node (x, y, k) at media_t[offset + x + dims.x·(y + dims.y·k)]. A directional light's
@@ -837,11 +850,82 @@ fn hg_phase(g: f32, cos_theta: f32) -> f32 {
     return (1.0 - g) * (1.0 + g) / (4.0 * PI * denom * sqrt(denom));
 }
 
+// ---- Ambient light: the constant `ambient`, or the shared SH grid --------------------
+
+const SH_Y0: f32 = 0.2820948; // Y00 = 1/(2√π)
+const SH_Y1: f32 = 0.4886025; // Y1m = √(3/(4π))·(y, z, x)
+
+const SH_STRIDE: u32 = 5u;
+
+// The accumulated grid's probes around `p`, interpolated trilinearly over the valid ones
+// (a probe inside geometry is not) that see `p`: `p` inside the probe's free box (its
+// free distance along each axis), so light does not leak through a wall or floor between
+// a probe and the point; where none does, over every valid probe.
+fn sh_at(p: vec3f) -> array<vec4f, 3> {
+    let dims = frame.sh_dims;
+    let c = clamp((p - frame.sh_min) / frame.sh_cell, vec3f(0.0), vec3f(dims - 1u));
+    let c0 = min(vec3u(floor(c)), dims - 1u);
+    let f = c - vec3f(c0);
+    var acc = array<vec4f, 3>(vec4f(0.0), vec4f(0.0), vec4f(0.0));
+    var total = 0.0;
+    for (var pass_all = 0u; pass_all < 2u && total <= 1e-6; pass_all++) {
+        for (var k = 0u; k < 8u; k++) {
+            let o = vec3u(k & 1u, (k >> 1u) & 1u, k >> 2u);
+            let q = min(c0 + o, dims - 1u);
+            let w3 = select(1.0 - f, f, vec3<bool>(o == vec3u(1u)));
+            let probe = (q.z * dims.y + q.y) * dims.x + q.x;
+            let m0 = ambient_sh[SH_STRIDE * probe + 3u];
+            var w = w3.x * w3.y * w3.z * m0.x;
+            if pass_all == 0u {
+                let m1 = ambient_sh[SH_STRIDE * probe + 4u];
+                let d = p - (frame.sh_min + vec3f(q) * frame.sh_cell);
+                let free = select(vec3f(m0.z, m1.x, m1.z), vec3f(m0.y, m0.w, m1.y), d >= vec3f(0.0));
+                w = select(0.0, w, all(abs(d) < free));
+            }
+            if w > 0.0 {
+                acc[0] += w * ambient_sh[SH_STRIDE * probe];
+                acc[1] += w * ambient_sh[SH_STRIDE * probe + 1u];
+                acc[2] += w * ambient_sh[SH_STRIDE * probe + 2u];
+                total += w;
+            }
+        }
+    }
+    let inv = select(0.0, 1.0 / total, total > 1e-6);
+    return array<vec4f, 3>(acc[0] * inv, acc[1] * inv, acc[2] * inv);
+}
+
+// Σ_lm k_l·c_lm·Y_lm(d) per channel, zonal factors k = (k0, k1), never negative.
+fn sh_eval(sh: array<vec4f, 3>, d: vec3f, k0: f32, k1: f32) -> vec3f {
+    let y = vec4f(k0 * SH_Y0, k1 * SH_Y1 * d.y, k1 * SH_Y1 * d.z, k1 * SH_Y1 * d.x);
+    return max(vec3f(dot(sh[0], y), dot(sh[1], y), dot(sh[2], y)), vec3f(0.0));
+}
+
+// Ambient radiance a medium of HG `g` at `p` scatters toward an eye looking along
+// `view_dir`: ∫ L(ω)·p(ω·view_dir) dω = Σ g^l·c_lm·Y_lm(view_dir) (Funk–Hecke), or the
+// constant `ambient` (isotropic: the phase integrates to 1).
+fn ambient_radiance(p: vec3f, view_dir: vec3f, g: f32) -> vec3f {
+    if (frame.flags & FLAG_SH_AMBIENT) == 0u {
+        return frame.ambient;
+    }
+    return sh_eval(sh_at(p), view_dir, 1.0, g);
+}
+
+// Ambient irradiance on a surface at `p` of normal `n`: the clamped cosine's zonal factors
+// (π, 2π/3), or π·`ambient`.
+fn ambient_irradiance(p: vec3f, n: vec3f) -> vec3f {
+    if (frame.flags & FLAG_SH_AMBIENT) == 0u {
+        return frame.ambient * PI;
+    }
+    // Lifted off the surface by a tenth of the spacing: inside the free box of the probes
+    // on its side, outside those of the probes behind it.
+    return sh_eval(sh_at(p + n * (0.1 * frame.sh_cell)), n, PI, 2.0 * PI / 3.0);
+}
+
 // In-scattered radiance per metre at `p` seen along `view_dir`, given the visibility
 // of each light by opaque geometry (0..1); the light is dimmed by the media it crossed
-// on its way to p (`light_transmittance`). Ambient light is isotropic (phase integrates to 1).
+// on its way to p (`light_transmittance`). Ambient light as `ambient_radiance`.
 fn in_scattering(m: MediumSample, p: vec3f, view_dir: vec3f, vis: array<f32, 8>) -> vec3f {
-    var l_in = frame.ambient;
+    var l_in = ambient_radiance(p, view_dir, m.g);
     for (var i = 0u; i < frame.light_count; i++) {
         if vis[i] <= 0.0 {
             continue;

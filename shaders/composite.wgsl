@@ -41,7 +41,7 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
             n = -n;
         }
         let albedo = textureLoad(gbuf_albedo, texel, layer, 0).rgb;
-        var irradiance = frame.ambient * PI;
+        var irradiance = ambient_irradiance(p, n);
         // Offset along the normal, scaled with distance (depth precision).
         let origin = p + n * (2e-3 + depth * 2e-4);
         for (var li = 0u; li < frame.light_count; li++) {

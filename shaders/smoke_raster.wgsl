@@ -136,7 +136,7 @@ fn fs_main(i: VsOut) -> @location(0) vec4f {
         }
     }
     let albedo = p.scattering / sigma;
-    let c = albedo * (scattered + frame.ambient * a);
+    let c = albedo * (scattered + ambient_radiance(p.centre, dir, 0.0) * a);
     // The fog in front of the particle, at its closest approach on the interval.
     var fog = vec4f(0.0, 0.0, 0.0, 1.0);
     if (frame.flags & FLAG_MEDIA) != 0u {

@@ -3,9 +3,9 @@
 use anyhow::{anyhow, Context as _};
 use wgpu::util::DeviceExt as _;
 
-/// Storage buffers a compute stage binds at most: the scene's group 0 (15, the smoke's
-/// shadow maps included) and the stage's own group (6).
-const STORAGE_BUFFERS_NEEDED: u32 = 21;
+/// Storage buffers a compute stage binds at most: the scene's group 0 (16, the smoke's
+/// shadow maps and the ambient grid included) and the stage's own group (6).
+const STORAGE_BUFFERS_NEEDED: u32 = 22;
 
 /// The wgpu device and queue fogcast renders with, and what the adapter can do.
 pub struct GpuContext {
@@ -79,7 +79,7 @@ impl GpuContext {
             required_features |= wgpu::Features::SUBGROUP;
         }
         let adapter_limits = adapter.limits();
-        // Group 0 (the scene, 15 buffers) and a stage's own group (at most 6) together.
+        // Group 0 (the scene, 16 buffers) and a stage's own group (at most 6) together.
         anyhow::ensure!(
             adapter_limits.max_storage_buffers_per_shader_stage >= STORAGE_BUFFERS_NEEDED,
             "the adapter {} binds {} storage buffers per shader stage; fogcast needs {}",

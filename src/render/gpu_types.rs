@@ -16,6 +16,8 @@ pub(crate) const FLAG_LAYER: u32 = 1024;
 /// Mode `maps`: every froxel reads the shared shadow maps.
 pub(crate) const FLAG_MAPS: u32 = 2048;
 pub(crate) const FLAG_LAYER_FULL: u32 = 4096;
+/// Ambient light from the shared SH grid (ambient_grid.rs), not the constant `ambient`.
+pub(crate) const FLAG_SH_AMBIENT: u32 = 8192;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 11;
@@ -69,6 +71,12 @@ pub(crate) struct FrameGpu {
     pub layer_node_words: u32,
     /// Live smoke particles in `particles` (group 0, binding 12) this frame.
     pub particle_count: u32,
+    /// The shared ambient grid (ambient_grid.rs): first probe, spacing, probes a side
+    /// and in all.
+    pub sh_min: [f32; 3],
+    pub sh_cell: f32,
+    pub sh_dims: [u32; 3],
+    pub sh_probes: u32,
 }
 
 #[repr(C)]
@@ -216,7 +224,7 @@ impl From<&Medium> for MediumGpu {
     }
 }
 
-const _: () = assert!(std::mem::size_of::<FrameGpu>() == 192);
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 224);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);

@@ -8,6 +8,7 @@
 //! per-viewer stages for each set, one submission and one readback. See
 //! docs/architecture.md.
 
+mod ambient_grid;
 mod composite;
 mod froxel_cull;
 mod froxel_lighting;
@@ -313,6 +314,7 @@ impl Renderer {
             world.add_transmittance(e, &frame, ts)
         });
         f.world(Stage::SmokeShadows, |e, _| world.add_smoke_shadows(e, ts));
+        f.world(Stage::AmbientGrid, |e, _| world.add_ambient(e, ts));
         let (grid, maps, cull) = (
             world.grid(),
             &world.shadow_maps,
@@ -512,6 +514,7 @@ fn dispatches(
                 .collect(),
             Stage::MediaTransmittance => vec![world.transmittance.workgroups()],
             Stage::SmokeShadows => vec![world.smoke_shadows.workgroups()],
+            Stage::AmbientGrid => world.ambient.iter().map(|a| a.workgroups()).collect(),
             Stage::SharedGrid => world.grid.iter().map(|g| g.workgroups()).collect(),
             Stage::GridRequests | Stage::FroxelLighting | Stage::VolumeIntegration => {
                 per_set(|g| g.columns).collect()

@@ -121,6 +121,8 @@ pub(crate) struct SceneGpu {
     /// (smoke_shadows.rs): a single placeholder node without emitters or lights.
     pub smoke_nodes: wgpu::Buffer,
     pub smoke_maps: wgpu::Buffer,
+    /// The shared ambient grid's SH probes (ambient_grid.rs; a placeholder without it).
+    pub ambient_sh: wgpu::Buffer,
     /// Bumped whenever a buffer of group 0 is reallocated: bind groups made before
     /// must be made again.
     pub generation: u32,
@@ -196,6 +198,7 @@ impl SceneGpu {
 
     /// `light_media`: the media transmittance volumes' layout (`media_transmittance::plan`).
     /// `layer`: the world media layer's plan (`media_layer::plan`), if there is one.
+    /// `ambient`: the shared ambient grid's probes (`ambient_grid::plan`), if any.
     pub(crate) fn new(
         ctx: &GpuContext,
         scene: &Scene,
@@ -203,6 +206,7 @@ impl SceneGpu {
         light_media: &[LightMediaGpu],
         layer: Option<&LayerPlan>,
         smoke_nodes: u64,
+        ambient: Option<&super::ambient_grid::AmbientPlan>,
     ) -> anyhow::Result<SceneGpu> {
         let lights: Vec<LightGpu> = scene.lights.iter().map(LightGpu::from).collect();
         let media: Vec<MediumGpu> = scene
@@ -261,7 +265,7 @@ impl SceneGpu {
             "scene",
             &[
                 Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite,
-                ReadWrite, ReadWrite, Read, ReadWrite, Read,
+                ReadWrite, ReadWrite, Read, ReadWrite, Read, ReadWrite,
             ],
             wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
         );
@@ -318,6 +322,14 @@ impl SceneGpu {
         if smoke_nodes > 0 {
             memory.push(("smoke_shadows", smoke_nodes_buf.size() + smoke_maps.size()));
         }
+        let ambient_sh = ctx.storage(
+            "ambient sh",
+            ambient.map_or(16, |a| a.bytes()),
+            wgpu::BufferUsages::empty(),
+        )?;
+        if let Some(a) = ambient {
+            memory.push(("ambient_grid", a.bytes()));
+        }
         let bind_group = ctx.bind_buffers(
             "scene",
             &layout,
@@ -337,9 +349,11 @@ impl SceneGpu {
                 &particles,
                 &smoke_nodes_buf,
                 &smoke_maps,
+                &ambient_sh,
             ],
         );
         Ok(SceneGpu {
+            ambient_sh,
             layer: layer_buffers,
             particles,
             particle_capacity,
@@ -429,6 +443,7 @@ impl SceneGpu {
                 &self.particles,
                 &self.smoke_nodes,
                 &self.smoke_maps,
+                &self.ambient_sh,
             ],
         )
     }

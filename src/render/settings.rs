@@ -230,6 +230,16 @@ settings! {
     /// (seed 001 §3.10; even, 2..=64). The optical depth is exact whatever this is.
     #[serde(default = "default_smoke_simpson_steps")]
     smoke_simpson_steps: u32 = default_smoke_simpson_steps();
+
+    /// Probe spacing of the shared ambient grid, metres (0: the scene's constant
+    /// `ambient`).
+    ///
+    /// Order-2 spherical harmonics of the sky, the media's scattering and the surfaces'
+    /// reflection arriving at world-space probes, traced once per frame for every viewer
+    /// and accumulated over frames (seed 003; src/render/ambient_grid.rs). They replace
+    /// the constant ambient of the fog, the smoke and the surfaces.
+    #[serde(default)]
+    sh_ambient_m: f32 = 0.0;
 }
 
 // What reports from before these settings existed read as (and their defaults).
@@ -570,6 +580,12 @@ impl Settings {
                 || (self.media_voxel_m.is_finite() && self.media_voxel_m >= 0.01),
             "media_voxel_m={}: must be 0 (evaluate the media per sample) or at least 0.01 m",
             self.media_voxel_m
+        );
+        anyhow::ensure!(
+            self.sh_ambient_m == 0.0
+                || (self.sh_ambient_m.is_finite() && self.sh_ambient_m >= 0.01),
+            "sh_ambient_m={}: must be 0 (the constant ambient) or at least 0.01 m",
+            self.sh_ambient_m
         );
         anyhow::ensure!(
             self.mode != Mode::Maps || self.shadow_map_px > 0,

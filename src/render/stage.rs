@@ -25,6 +25,8 @@ pub enum Stage {
     MediaTransmittance,
     /// The smoke's adaptive volumetric shadow maps, one per light (world, seed 002).
     SmokeShadows,
+    /// The shared ambient grid's SH probes traced and accumulated (world, issue 16).
+    AmbientGrid,
     /// Hidden-froxel culling and the froxels' voxel requests (per viewer set; the sparse
     /// grid's brick allocation between them is world work).
     GridRequests,
@@ -58,13 +60,14 @@ pub enum Scope {
 
 impl Stage {
     /// Every stage, in the order the frame records them.
-    pub const ALL: [Stage; 14] = [
+    pub const ALL: [Stage; 15] = [
         Stage::GBuffer,
         Stage::SmokeParticles,
         Stage::ShadowMaps,
         Stage::MediaLayer,
         Stage::MediaTransmittance,
         Stage::SmokeShadows,
+        Stage::AmbientGrid,
         Stage::GridRequests,
         Stage::SharedGrid,
         Stage::ShadowFrustum,
@@ -84,6 +87,7 @@ impl Stage {
             Stage::MediaLayer => "media_layer",
             Stage::MediaTransmittance => "media_transmittance",
             Stage::SmokeShadows => "smoke_shadows",
+            Stage::AmbientGrid => "ambient_grid",
             Stage::GridRequests => "grid_requests",
             Stage::SharedGrid => "shared_grid",
             Stage::ShadowFrustum => "shadow_frustum",
@@ -123,6 +127,7 @@ impl Stage {
             | Stage::MediaLayer
             | Stage::MediaTransmittance
             | Stage::SmokeShadows
+            | Stage::AmbientGrid
             | Stage::SharedGrid => Scope::World,
             _ => Scope::Viewers,
         }

@@ -4,6 +4,7 @@
 //! changed since the last frame (lights, movers). Its stages run once per frame, before
 //! any viewer set reads them.
 
+use super::ambient_grid::{self, AmbientGrid};
 use super::gpu_types::*;
 use super::media_layer::{self, MediaLayer};
 use super::media_transmittance::{self, MediaTransmittance};
@@ -69,6 +70,8 @@ pub struct World {
     pub(crate) particle_count: u32,
     /// The smoke's adaptive volumetric shadow maps (smoke_shadows.rs).
     pub(crate) smoke_shadows: SmokeShadows,
+    /// The shared ambient grid (`sh_ambient_m` > 0; ambient_grid.rs).
+    pub(crate) ambient: Option<AmbientGrid>,
     /// The lights as last uploaded (animated lights move; a change marks the light dirty).
     lights_uploaded: Option<Vec<LightGpu>>,
     /// Scene time of the movers as last uploaded.
@@ -103,6 +106,7 @@ impl World {
         } else {
             None
         };
+        let ambient_plan = ambient_grid::plan(&scene, settings.sh_ambient_m);
         let gpu = SceneGpu::new(
             &ctx,
             &scene,
@@ -110,6 +114,7 @@ impl World {
             &light_media,
             layer_plan.as_ref(),
             smoke_shadows::node_count(&scene, &settings),
+            ambient_plan.as_ref(),
         )?;
         let grid = match scene.media_bounds() {
             Some(bounds) if shared && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
@@ -136,6 +141,7 @@ impl World {
             smoke: SmokeParticles::new(&ctx, &scene, &gpu.particles),
             particle_count: 0,
             smoke_shadows: SmokeShadows::new(&ctx, &gpu.layout, &scene, &settings),
+            ambient: ambient_plan.map(|p| AmbientGrid::new(&ctx, &gpu.layout, p)),
             triangles: bvh.triangle_count()
                 + scene.movers.iter().map(|m| m.mesh.len()).sum::<usize>(),
             gpu,
@@ -159,6 +165,9 @@ impl World {
         self.shadow_maps.invalidate();
         self.transmittance.invalidate();
         self.smoke_shadows.invalidate();
+        if let Some(a) = &mut self.ambient {
+            a.invalidate();
+        }
         if let Some(l) = &mut self.layer {
             l.invalidate();
         }
@@ -245,6 +254,10 @@ impl World {
                 flags |= FLAG_LAYER_FULL;
             }
         }
+        let ambient = self.ambient.as_ref().map(|a| *a.plan());
+        if ambient.is_some() {
+            flags |= FLAG_SH_AMBIENT;
+        }
         // Only where the culling passes run: a grid exists (media and lights).
         if s.culls_hidden_froxels() && self.grid.is_some() {
             flags |= FLAG_CULL;
@@ -289,6 +302,10 @@ impl World {
             layer_first: layer.as_ref().map_or(0, |(_, p)| p.first),
             layer_node_words: layer.as_ref().map_or(1, |(_, p)| p.node_words()),
             particle_count,
+            sh_min: ambient.map_or([0.0; 3], |a| a.min.to_array()),
+            sh_cell: ambient.map_or(1.0, |a| a.cell),
+            sh_dims: ambient.map_or([1; 3], |a| a.dims.to_array()),
+            sh_probes: ambient.map_or(0, |a| a.probes()),
         })
     }
 
@@ -385,5 +402,13 @@ impl World {
     ) -> bool {
         self.transmittance
             .add_pass(enc, &self.gpu.bind_group, frame.transmittance_dirty, ts)
+    }
+
+    /// Records the shared ambient grid's passes (every frame it exists: it accumulates).
+    pub(crate) fn add_ambient(&mut self, enc: &mut wgpu::CommandEncoder, ts: &Timestamps) -> bool {
+        let (ctx, gpu, frame_index) = (&self.ctx, &self.gpu, self.frame_index);
+        self.ambient
+            .as_mut()
+            .is_some_and(|a| a.add_passes(ctx, enc, &gpu.bind_group, frame_index, ts))
     }
 }

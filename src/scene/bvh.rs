@@ -27,7 +27,8 @@ pub struct GpuBvhNode {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GpuTriangle {
-    /// Vertex 0 (w unused).
+    /// Vertex 0; w holds the triangle's albedo (the mesh's packed RGBA8 of its first
+    /// vertex, as bits), what the shared ambient grid's rays see where they hit.
     pub v0: [f32; 4],
     /// v1 − v0.
     pub e1: [f32; 4],
@@ -114,8 +115,9 @@ impl Bvh {
             .iter()
             .map(|&i| {
                 let [a, b, c] = triangles[i as usize];
+                let albedo = mesh.albedo[mesh.indices[i as usize][0] as usize];
                 GpuTriangle {
-                    v0: a.extend(0.0).to_array(),
+                    v0: a.extend(f32::from_bits(albedo)).to_array(),
                     e1: (b - a).extend(0.0).to_array(),
                     e2: (c - a).extend(0.0).to_array(),
                 }
