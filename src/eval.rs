@@ -48,6 +48,8 @@ pub struct EvalConfig {
     pub avsm_nodes: Vec<u32>,
     /// Simpson steps of the smoke's in-scattering to sweep on smoke scenes.
     pub smoke_simpson_steps: Vec<u32>,
+    /// Probe spacings of the shared ambient grid, each a `shared` variant (issue 16).
+    pub sh_ambient_m: Vec<f32>,
     /// Output folder.
     pub out: PathBuf,
     /// The command line, recorded in the report.
@@ -325,6 +327,16 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
                 variants.push(s);
             }
         }
+    }
+    // The shared ambient grid (issue 16) in place of the constant `ambient`, on top of
+    // `shared`'s defaults.
+    for &sh_ambient_m in &cfg.sh_ambient_m {
+        variants.push(Settings {
+            mode: Mode::Shared,
+            voxel_size_m: base.voxel_size_m,
+            sh_ambient_m,
+            ..Settings::default()
+        });
     }
     for &depth_curve in &cfg.depth_curves {
         if depth_curve != base.depth_curve {

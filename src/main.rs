@@ -87,6 +87,11 @@ struct EvalArgs {
     /// Smoke scenes only: Simpson steps of the particles' in-scattering to sweep.
     #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
     smoke_simpson_steps: Vec<u32>,
+    /// Probe spacings of the shared ambient grid to compare, metres, each on top of
+    /// `shared`'s defaults (empty: none; issue 16). Against a multiple-scattering truth
+    /// (`--truth-bounces`) this measures the grid against the constant `ambient`.
+    #[arg(long, value_delimiter = ',')]
+    sh_ambient: Vec<f32>,
     /// Output folder (eval.md, eval.csv, eval.json, plots, sample images).
     #[arg(long, default_value = "out/eval")]
     out: PathBuf,
@@ -345,6 +350,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         depth_curves: a.depth_curves,
         avsm_nodes: a.avsm_nodes,
         smoke_simpson_steps: a.smoke_simpson_steps,
+        sh_ambient_m: a.sh_ambient,
         out: a.out.clone(),
         command,
     };
