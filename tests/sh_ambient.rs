@@ -165,3 +165,56 @@ fn the_grid_is_closer_to_the_multiple_scattering_truth_than_the_constant() {
         "the grid is {e_grid:.2} 8-bit steps from the truth"
     );
 }
+
+/// The grid is world work: one dispatch line per frame (trace and blend over the probes)
+/// and one buffer, whatever the number of viewers; per-viewer stages grow with them.
+#[test]
+fn the_grid_runs_once_per_frame_for_any_number_of_viewers() {
+    let yard = scene(YARD);
+    let settings = Settings {
+        sh_ambient_m: 2.0,
+        ..Settings::for_scene(&yard)
+    };
+    let mut per_count = Vec::new();
+    for viewers in [1, 4] {
+        let mut r = Renderer::new(gpu(), yard.clone(), settings).unwrap();
+        let cams = yard.camera.viewers(viewers, 0.0);
+        r.render(&cams, 24, 14, 0.0).unwrap();
+        let stats = r.render(&cams, 24, 14, 0.1).unwrap().stats;
+        let of = |stage: &str| -> Vec<[u32; 3]> {
+            stats
+                .dispatches
+                .iter()
+                .filter(|(s, _)| s == stage)
+                .map(|(_, g)| *g)
+                .collect()
+        };
+        let grid_bytes = stats
+            .memory
+            .shared
+            .iter()
+            .find(|(name, _)| name == "ambient_grid")
+            .map(|(_, b)| *b);
+        assert!(
+            stats
+                .memory
+                .per_viewer
+                .iter()
+                .all(|(name, _)| name != "ambient_grid"),
+            "{:?}",
+            stats.memory.per_viewer
+        );
+        per_count.push((of("ambient_grid"), of("froxel_lighting"), grid_bytes));
+    }
+    eprintln!("dispatches at 1 and 4 viewers: {per_count:?}");
+    let (one, four) = (&per_count[0], &per_count[1]);
+    assert_eq!(one.0.len(), 1, "one ambient grid line per frame");
+    assert_eq!(one.0, four.0, "the same grid work at 1 and 4 viewers");
+    assert_eq!(one.2, four.2, "the same grid memory");
+    assert!(one.2.is_some_and(|b| b > 0));
+    let froxel_groups = |g: &[[u32; 3]]| g.iter().map(|w| w[0] * w[1] * w[2]).sum::<u32>();
+    assert!(
+        froxel_groups(&four.1) > froxel_groups(&one.1),
+        "per-viewer work grows"
+    );
+}
