@@ -750,3 +750,148 @@ async fn chromium_shows_the_smoke_scene_moving() {
     }
     server.shutdown().await.unwrap();
 }
+
+/// The luma of the canvas's left and right halves (a stereo frame: left eye, right eye),
+/// row by row.
+async fn eye_lumas(cdp: &mut Cdp) -> (Vec<f64>, Vec<f64>, usize, usize) {
+    let v = cdp
+        .eval(
+            "(() => { const c = document.getElementById('view'); \
+             const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; \
+             const l = []; for (let i = 0; i < d.length; i += 4) \
+             l.push(0.2126 * d[i] + 0.7152 * d[i + 1] + 0.0722 * d[i + 2]); \
+             return { w: c.width, h: c.height, l }; })()",
+        )
+        .await;
+    let (w, h) = (
+        v["w"].as_u64().unwrap() as usize,
+        v["h"].as_u64().unwrap() as usize,
+    );
+    let l: Vec<f64> = v["l"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let half = w / 2;
+    let (mut left, mut right) = (Vec::new(), Vec::new());
+    for y in 0..h {
+        left.extend_from_slice(&l[y * w..y * w + half]);
+        right.extend_from_slice(&l[y * w + half..(y + 1) * w]);
+    }
+    (left, right, half, h)
+}
+
+/// Mean |left(x) − right(x + s)| over the columns both cover, for each shift s.
+fn shifted_differences(
+    left: &[f64],
+    right: &[f64],
+    w: usize,
+    h: usize,
+    max: i32,
+) -> Vec<(i32, f64)> {
+    (-max..=max)
+        .map(|s| {
+            let (mut sum, mut n) = (0.0, 0);
+            for y in 0..h {
+                for x in 0..w as i32 {
+                    let xr = x + s;
+                    if (0..w as i32).contains(&xr) {
+                        sum += (left[y * w + x as usize] - right[y * w + xr as usize]).abs();
+                        n += 1;
+                    }
+                }
+            }
+            (s, sum / f64::from(n))
+        })
+        .collect()
+}
+
+/// A stereo session in the browser: two eyes side by side that differ by the parallax of
+/// the eye distance (the right eye sees the scene shifted left by f·e/z pixels), that
+/// move with the pose, and that are identical at eye distance 0.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn chromium_shows_a_stereo_session_with_parallax() {
+    let server = start(test_config()).await;
+    let addr = server.local_addr();
+    const EYE_M: f64 = 0.3;
+    let mut page = open_page(
+        addr,
+        &format!("?w=192&h=72&layout=stereo&eye={EYE_M}&quality=95&codec=jpeg"),
+        None,
+    )
+    .await;
+    let cdp = &mut page.cdp;
+    let s = cdp
+        .wait_stats("3 stereo frames shown", |s| s["shown"].as_u64() >= Some(3))
+        .await;
+    assert_eq!(s["errors"].as_array().map(Vec::len), Some(0), "{s}");
+    assert_eq!(s["layout"].as_str(), Some("stereo"), "{s}");
+    let (left, right, w, h) = eye_lumas(cdp).await;
+    assert_eq!((w, h), (96, 72), "two 96x72 eyes");
+    let fov_y = s["camera"]["fov"]
+        .as_f64()
+        .expect("the pose's fov")
+        .to_radians();
+    let f_px = h as f64 / 2.0 / (fov_y / 2.0).tan();
+    let diffs = shifted_differences(&left, &right, w, h, 16);
+    let (best, best_diff) = diffs
+        .iter()
+        .copied()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
+    let at_zero = diffs.iter().find(|(s, _)| *s == 0).unwrap().1;
+    // The colonnade from its path: most of the view is 2 to 15 m away.
+    let (near_px, far_px) = (f_px * EYE_M / 2.0, f_px * EYE_M / 15.0);
+    eprintln!(
+        "browser (stereo, eye {EYE_M} m, f {f_px:.1} px): best shift {best} px ({best_diff:.2} mean luma difference, {at_zero:.2} unshifted); expected between -{near_px:.1} and -{far_px:.1}"
+    );
+    assert!(at_zero > 1.0, "the eyes differ: {at_zero:.2}");
+    assert!(
+        best < 0 && f64::from(-best) <= near_px + 1.0 && f64::from(-best) >= far_px.floor(),
+        "the right eye's image is shifted by {best} px, expected -{far_px:.1}..-{near_px:.1}"
+    );
+    assert!(
+        best_diff < 0.8 * at_zero,
+        "the shift explains the difference: {best_diff:.2} vs {at_zero:.2}"
+    );
+
+    // Both eyes move with the head.
+    let (before_l, before_r) = (left, right);
+    fly(cdp).await;
+    let (after_l, after_r, _, _) = eye_lumas(cdp).await;
+    let moved = |a: &[f64], b: &[f64]| {
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f64>() / a.len() as f64
+    };
+    let (moved_l, moved_r) = (moved(&before_l, &after_l), moved(&before_r, &after_r));
+    eprintln!(
+        "browser (stereo): after flying, left eye changed {moved_l:.2}, right eye {moved_r:.2}"
+    );
+    assert!(
+        moved_l > 2.0 && moved_r > 2.0,
+        "both eyes follow the pose: {moved_l:.2}, {moved_r:.2}"
+    );
+    drop(page);
+
+    // Eye distance 0: both eyes are the same view.
+    let mut page = open_page(
+        addr,
+        "?w=192&h=72&layout=stereo&eye=0&quality=95&codec=jpeg",
+        None,
+    )
+    .await;
+    let cdp = &mut page.cdp;
+    cdp.wait_stats("3 frames at eye distance 0", |s| {
+        s["shown"].as_u64() >= Some(3)
+    })
+    .await;
+    let (left, right, w, h) = eye_lumas(cdp).await;
+    let same = shifted_differences(&left, &right, w, h, 0)[0].1;
+    eprintln!("browser (stereo, eye 0): mean luma difference between the eyes {same:.3}");
+    assert!(
+        same < 0.5,
+        "at eye distance 0 the eyes are one view: {same:.3}"
+    );
+    drop(page);
+    server.shutdown().await.unwrap();
+}
