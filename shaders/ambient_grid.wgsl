@@ -10,7 +10,8 @@
 // every stage reads, as seed 003 accumulates its SH volume over frames: the history
 // clamped to the range of this frame's estimates in the probe's 3×3×3 neighbourhood,
 // then an exponential average (`alpha`). The first frame runs both passes `WARMUP` times
-// without the clamp (ambient_grid.rs), so one frame starts converged.
+// over every probe without the clamp (ambient_grid.rs), so one frame starts converged;
+// later frames update a share of the probes each (`stride`), the others keep theirs.
 
 struct Pass {
     // Seeds this pass's ray directions (the frame index, or the warm-up iteration).
@@ -19,7 +20,17 @@ struct Pass {
     alpha: f32,
     // 1: clamp the history to the neighbourhood's estimates first.
     clamp_history: u32,
-    _pad: u32,
+    // This pass updates the probes i ≡ phase (mod stride): a share of the grid a frame.
+    stride: u32,
+    phase: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// The probe invocation `t` of this pass updates (or one past the last probe).
+fn pass_probe(t: u32) -> u32 {
+    return t * pass_.stride + pass_.phase;
 }
 
 @group(1) @binding(0) var<storage, read> pass_: Pass;
@@ -92,7 +103,7 @@ fn radiance_from(o: vec3f, w: vec3f, jitter: f32, near: ptr<function, bool>) -> 
 
 @compute @workgroup_size(64)
 fn trace(@builtin(global_invocation_id) gid: vec3u) {
-    let i = gid.x;
+    let i = pass_probe(gid.x);
     if i >= frame.sh_probes {
         return;
     }
@@ -135,7 +146,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3u) {
 
 @compute @workgroup_size(64)
 fn blend(@builtin(global_invocation_id) gid: vec3u) {
-    let i = gid.x;
+    let i = pass_probe(gid.x);
     if i >= frame.sh_probes {
         return;
     }

@@ -363,9 +363,16 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
                 continue;
             }
         };
+        // The ambient grid lights the surfaces too: its fog contribution is measured
+        // against its own frame without media.
+        let own_bare = if settings.sh_ambient_m > 0.0 {
+            Some(runner.run(&bare, *settings)?.0)
+        } else {
+            None
+        };
         let test = Frames {
             images: &out.images,
-            no_media: &gpu_bare.images,
+            no_media: own_bare.as_ref().map_or(&gpu_bare.images, |b| &b.images),
         };
         let vs_truth = errors(&truth_frames, &test, w, h)?;
         let vs_reference = match &reference_images {

@@ -7,10 +7,10 @@
 //! scattered by the media and reflected by the surfaces, every further bounce — is traced
 //! from each probe: `RAYS` rays a frame, their radiance projected on SH and folded into the
 //! grid as seed 003 accumulates its SH volume (the history clamped to the neighbourhood's
-//! estimates, then an exponential average, `ALPHA`). The grid reads itself for the next
-//! bounce, so the bounces add up over frames. The first frame (and any after the world was
-//! invalidated) runs `WARMUP` passes without the clamp instead, so a single frame, as
-//! `eval` renders, starts converged.
+//! estimates, then an exponential average, `ALPHA`), a `STRIDE`th of the probes a frame.
+//! The grid reads itself for the next bounce, so the bounces add up over frames. The first
+//! frame (and any after the world was invalidated) runs `WARMUP` passes over every probe
+//! without the clamp instead, so a single frame, as `eval` renders, starts converged.
 //!
 //! Probes sit in the scene's bounds (geometry and media), at the centres of cells of
 //! `sh_ambient_m` metres, at most `MAX_PROBES` (the spacing grows past it). A probe whose
@@ -37,6 +37,9 @@ pub(crate) const WARMUP: u32 = 64;
 const WARMUP_ALPHA: f32 = 0.25;
 /// Weight of each later frame's estimate.
 pub(crate) const ALPHA: f32 = 0.1;
+/// After the first frame each frame updates every `STRIDE`th probe (in turn): the grid
+/// costs a quarter of a full pass a frame, each probe is refreshed every 4 frames.
+pub(crate) const STRIDE: u32 = 4;
 
 /// Where the probes are.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -91,7 +94,35 @@ struct PassGpu {
     seed: u32,
     alpha: f32,
     clamp_history: u32,
-    _pad: u32,
+    stride: u32,
+    phase: u32,
+    _pad: [u32; 3],
+}
+
+impl PassGpu {
+    /// Warm-up pass `k`: every probe, weight max(1/(k + 1), `WARMUP_ALPHA`), no clamp.
+    fn warmup(k: u32) -> PassGpu {
+        PassGpu {
+            seed: 0x8000_0000 | k,
+            alpha: (1.0 / (k + 1) as f32).max(WARMUP_ALPHA),
+            clamp_history: 0,
+            stride: 1,
+            phase: 0,
+            _pad: [0; 3],
+        }
+    }
+
+    /// The pass of frame `frame_index` after the warm-up: a `STRIDE`th of the probes.
+    fn steady(frame_index: u32) -> PassGpu {
+        PassGpu {
+            seed: frame_index,
+            alpha: ALPHA,
+            clamp_history: 1,
+            stride: STRIDE,
+            phase: frame_index % STRIDE,
+            _pad: [0; 3],
+        }
+    }
 }
 
 /// The trace and blend passes and whether the grid holds a converged history.
@@ -118,21 +149,11 @@ impl AmbientGrid {
         let layout = ctx.storage_layout("ambient_grid pass", &[Read]);
         let layouts = [scene_layout, &layout];
         let passes = (0..=WARMUP)
-            .map(|i| {
-                let p = if i < WARMUP {
-                    PassGpu {
-                        seed: 0x8000_0000 | i,
-                        alpha: (1.0 / (i + 1) as f32).max(WARMUP_ALPHA),
-                        clamp_history: 0,
-                        _pad: 0,
-                    }
+            .map(|k| {
+                let p = if k < WARMUP {
+                    PassGpu::warmup(k)
                 } else {
-                    PassGpu {
-                        seed: 0,
-                        alpha: ALPHA,
-                        clamp_history: 1,
-                        _pad: 0,
-                    }
+                    PassGpu::steady(0)
                 };
                 let buf = ctx.storage_init("ambient_grid pass", &[p], wgpu::BufferUsages::COPY_DST);
                 let bg = ctx.bind_buffers("ambient_grid pass", &layout, &[&buf]);
@@ -157,12 +178,13 @@ impl AmbientGrid {
         self.warm = false;
     }
 
+    /// Workgroups of a steady frame's passes (a `STRIDE`th of the probes).
     pub(crate) fn workgroups(&self) -> [u32; 3] {
-        [self.plan.probes().div_ceil(64), 1, 1]
+        [self.plan.probes().div_ceil(STRIDE).div_ceil(64), 1, 1]
     }
 
-    /// Records this frame's passes: the warm-up on the first frame, else one trace and
-    /// one blend seeded by `frame_index`.
+    /// Records this frame's passes: the warm-up over every probe on the first frame,
+    /// else one trace and one blend over a `STRIDE`th of them, seeded by `frame_index`.
     pub(crate) fn add_passes(
         &mut self,
         ctx: &GpuContext,
@@ -171,19 +193,13 @@ impl AmbientGrid {
         frame_index: u32,
         ts: &Timestamps,
     ) -> bool {
-        let groups = self.workgroups();
-        let range = if self.warm {
+        let (range, groups) = if self.warm {
             let (buf, _) = &self.passes[WARMUP as usize];
-            let p = PassGpu {
-                seed: frame_index,
-                alpha: ALPHA,
-                clamp_history: 1,
-                _pad: 0,
-            };
+            let p = PassGpu::steady(frame_index);
             ctx.queue.write_buffer(buf, 0, bytemuck::bytes_of(&p));
-            WARMUP as usize..WARMUP as usize + 1
+            (WARMUP as usize..WARMUP as usize + 1, self.workgroups())
         } else {
-            0..WARMUP as usize
+            (0..WARMUP as usize, [self.plan.probes().div_ceil(64), 1, 1])
         };
         for (_, bg) in &self.passes[range] {
             dispatch(
