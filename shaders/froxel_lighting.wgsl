@@ -146,7 +146,8 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
     let view_index = gid.z;
     if view_index < frame.view_count {
         let v = views[view_index];
-        if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y {
+        // A coupled stereo eye reads its partner's volume (v.volume_view).
+        if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y && v.volume_view == view_index {
             // Slices behind every surface this column shows never reach the image.
             var last = frame.slices - 1u;
             if (frame.flags & FLAG_CULL) != 0u {

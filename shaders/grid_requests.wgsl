@@ -75,7 +75,8 @@ fn request_column(gid: vec3u) {
         return;
     }
     let v = views[gid.z];
-    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y {
+    // A coupled stereo eye lights no froxels (v.volume_view).
+    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.volume_view != gid.z {
         return;
     }
     var last = frame.slices - 1u;

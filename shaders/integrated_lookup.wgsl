@@ -32,3 +32,20 @@ fn sample_integrated(v: View, pix: vec2f, depth: f32) -> vec4f {
     }
     return acc;
 }
+
+// The fog between view `v`'s eye (slot `slot`) and the world point `p` its pixel `pix`
+// shows at `depth` along its forward axis. A coupled stereo eye (v.volume_view ≠ slot)
+// reads its partner's volume where `p` projects into it: the integral along the
+// partner's ray to `p`, which differs from its own by the eyes' parallax
+// (viewer_set.rs, `stereo_pairs`).
+fn fog_to(v: View, slot: u32, pix: vec2f, depth: f32, p: vec3f) -> vec4f {
+    if v.volume_view == slot {
+        return sample_integrated(v, pix, depth);
+    }
+    let o = views[v.volume_view];
+    let d = p - o.position;
+    let z = max(dot(d, o.forward), o.near);
+    let ndc = vec2f(dot(d, o.right) / (z * o.tan_x), dot(d, o.up) / (z * o.tan_y));
+    let opix = vec2f(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * vec2f(o.size);
+    return sample_integrated(o, opix, z);
+}

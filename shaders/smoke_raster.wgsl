@@ -140,7 +140,8 @@ fn fs_main(i: VsOut) -> @location(0) vec4f {
     // The fog in front of the particle, at its closest approach on the interval.
     var fog = vec4f(0.0, 0.0, 0.0, 1.0);
     if (frame.flags & FLAG_MEDIA) != 0u {
-        fog = sample_integrated(v, pix, clamp(b, t0, t1) * cos_f);
+        let t = clamp(b, t0, t1);
+        fog = fog_to(v, sv.slot, pix, t * cos_f, v.position + dir * t);
     }
     let out = vec4f(a * fog.rgb + fog.w * c, a);
     return select(vec4f(0.0), out, all(out == out) && all(abs(out) <= vec4f(6.0e4)));

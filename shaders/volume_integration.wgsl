@@ -15,7 +15,8 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         return;
     }
     let v = views[view_index];
-    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y {
+    // A coupled stereo eye reads its partner's volume (v.volume_view).
+    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.volume_view != view_index {
         return;
     }
     let pix = (vec2f(gid.xy) + 0.5) * f32(v.froxel_px);

@@ -62,6 +62,9 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         time_s: 0.0,
         overlaps_pct: vec![50.0],
         overlap_viewers: vec![2],
+        // One stereo session: its two eyes coupled, and each alone.
+        stereo_sessions: vec![1],
+        eye_distance_m: 0.064,
         truth: 2,
         out: out.clone(),
         command: "tests/bench.rs".into(),
@@ -74,7 +77,7 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     .expect("bench runs");
     assert_eq!(
         progressed.into_inner(),
-        4 * 3 * (1 + 4 + 2),
+        4 * 3 * (1 + 4 + 2 + 2 * 2),
         "progress reaches every viewer-frame"
     );
     for file in [
@@ -100,8 +103,8 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     let points = json["points"].as_array().expect("points");
     assert_eq!(
         points.len(),
-        3 * 4,
-        "(1, 4 viewers + 2 overlapping) × 4 configurations"
+        5 * 4,
+        "(1, 4 viewers, 2 overlapping, 1 stereo session, its eyes alone) × 4 configurations"
     );
     let find = |scenario: &str, config: &str, viewers: u64| -> &Value {
         points
@@ -204,6 +207,29 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
         println!("{} vs truth: FLIP {v:.4}", f[0]);
         assert!(v > 0.0 && v <= 0.08, "{f}");
     }
+    // Coupled stereo: one volume for both eyes, each eye near itself rendered alone.
+    for config in ["reference", "shared", "maps", "paper"] {
+        let (s, a) = (
+            find("stereo", config, 2),
+            find("stereo_eyes_alone", config, 2),
+        );
+        let flip = number(s, "flip_vs_eyes_alone.mean");
+        let (lit, lit_alone) = (
+            number(s, "froxels_with_media"),
+            number(a, "froxels_with_media"),
+        );
+        println!("{config} stereo: FLIP {flip:.4} against the eyes alone; froxels lit {lit} / {lit_alone}");
+        assert!(
+            flip <= 0.02,
+            "{config}: coupled eyes FLIP {flip} against alone"
+        );
+        assert!(
+            lit > 0.0 && lit < 0.6 * lit_alone,
+            "{config}: {lit} / {lit_alone}"
+        );
+    }
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(md.contains("## Stereo sessions (issue 16)"), "{md}");
     let rays = |config, n| number(find("path", config, n), "rays.fog_total");
     let (r1, r4, p1, p4, s1, s4) = (
         rays("reference", 1),

@@ -49,6 +49,14 @@ pub struct BenchArgs {
     /// Viewer counts of the fixed-overlap scenario.
     #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
     pub overlap_viewers: Vec<usize>,
+    /// Stereo scenario: stereo sessions per point, e.g. 1,2,4,8 (2..16 eyes), heads
+    /// along the path; every eye is also rendered as a mono view on the same frame
+    /// (default: none, skip the scenario).
+    #[arg(long, value_delimiter = ',')]
+    pub stereo: Vec<usize>,
+    /// Eye distance of the stereo scenario, metres.
+    #[arg(long, default_value_t = 0.064)]
+    pub eye_distance: f32,
     /// Every configuration's mean FLIP against `truth` (the CPU renderer) on one image:
     /// the path's first viewer at `--time`, at the viewer size divided by this (0: skip).
     ///
@@ -97,6 +105,8 @@ impl BenchArgs {
             time_s: self.time,
             overlaps_pct: self.overlap.clone(),
             overlap_viewers: self.overlap_viewers.clone(),
+            stereo_sessions: self.stereo.clone(),
+            eye_distance_m: self.eye_distance,
             truth: self.truth,
             out,
             command,

@@ -10,7 +10,10 @@
 //!   players spread over a level would be ([`crate::scene::CameraPath::viewers`]);
 //! - **overlap** (paper Figure 12): one camera on the path, duplicated and yawed in place
 //!   so that neighbouring frustums share a fixed fraction of their field of view
-//!   ([`fixed_overlap`]).
+//!   ([`fixed_overlap`]);
+//! - **stereo** (issue 16): heads along the path, each a stereo session of two eyes in
+//!   one frame, and the same eyes again as mono views on the same frame, for the cost
+//!   and the error of coupled stereo.
 //!
 //! Per point it records the median and range of each stage's GPU time and of the whole
 //! frame, shadow rays per stage, grid voxels updated, memory, and the mean FLIP of every
@@ -27,7 +30,9 @@ pub use variant::{configurations, mode_variants, parse_variant, BenchVariant};
 
 use crate::gpu::GpuContext;
 use crate::metrics::compare;
-use crate::render::{FrameOutput, Mode, RayCounts, Renderer, Stage};
+use crate::render::{
+    FrameOutput, FrameTarget, Mode, RayCounts, Renderer, Stage, TargetView, ViewerId,
+};
 use crate::scene::{Bvh, Camera, Scene};
 use crate::truth::{render_truth, TruthSettings};
 use glam::{Quat, Vec3};
@@ -75,6 +80,11 @@ pub struct BenchConfig {
     pub overlaps_pct: Vec<f32>,
     /// Viewer counts of the fixed-overlap scenario.
     pub overlap_viewers: Vec<usize>,
+    /// Stereo sessions of the stereo scenario (empty: skip it): heads spread along the
+    /// path, two eyes each, every eye also rendered as a mono view (issue 16).
+    pub stereo_sessions: Vec<usize>,
+    /// Eye distance of the stereo scenario, metres.
+    pub eye_distance_m: f32,
     /// Measure every configuration's error against `truth` (src/truth/, on the CPU) on
     /// one image, the path's first viewer at `time_s`, of `width / truth` ×
     /// `height / truth` pixels (0: not at all). At full size `truth` takes 15 minutes on
@@ -98,13 +108,36 @@ pub enum Scenario {
         /// Overlap of neighbouring frustums, percent.
         overlap_pct: f32,
     },
+    /// Stereo sessions: heads spread along the loop as in `Path`, each a frame of two
+    /// eyes `eye_distance_m` apart (coupled stereo shares their froxel volume).
+    Stereo {
+        /// Eye distance, metres.
+        eye_distance_m: f32,
+    },
+    /// The `Stereo` scenario's eyes, each rendered as a mono view of its own.
+    StereoEyesAlone {
+        /// Eye distance, metres.
+        eye_distance_m: f32,
+    },
 }
 
 impl Scenario {
-    /// The cameras of `n` viewers at scene time `time_s`.
+    /// The cameras of `n` viewers at scene time `time_s` (stereo: `n` eyes, left and
+    /// right of each head in turn).
     pub fn cameras(&self, scene: &Scene, n: usize, time_s: f32, aspect: f32) -> Vec<Camera> {
         match *self {
             Scenario::Path => scene.camera.viewers(n, time_s),
+            Scenario::Stereo { eye_distance_m } | Scenario::StereoEyesAlone { eye_distance_m } => {
+                scene
+                    .camera
+                    .viewers(n / 2, time_s)
+                    .into_iter()
+                    .flat_map(|head| {
+                        let t = FrameTarget::stereo(0, head, eye_distance_m, 1, 1);
+                        [t.views[0].camera, t.views[1].camera]
+                    })
+                    .collect()
+            }
             Scenario::Overlap { overlap_pct } => {
                 let base = scene.camera.viewers(1, time_s)[0];
                 fixed_overlap(base, n, overlap_pct / 100.0, aspect)
@@ -116,6 +149,10 @@ impl Scenario {
         match self {
             Scenario::Path => "path".into(),
             Scenario::Overlap { overlap_pct } => format!("overlap {overlap_pct}%"),
+            Scenario::Stereo { eye_distance_m } => format!("stereo {eye_distance_m} m"),
+            Scenario::StereoEyesAlone { eye_distance_m } => {
+                format!("eyes alone {eye_distance_m} m")
+            }
         }
     }
 }
@@ -233,6 +270,10 @@ pub struct BenchPoint {
     pub rays: RayCounts,
     /// Shared-grid voxels traced (updated), mean per measured frame.
     pub voxels_updated: u64,
+    /// Froxels lit with media, mean per measured frame (a coupled stereo pair lights one
+    /// volume).
+    #[serde(default)]
+    pub froxels_with_media: u64,
     /// Shared grid dimensions (zero without a grid).
     pub grid_dims: [u32; 3],
     /// GPU memory.
@@ -240,6 +281,10 @@ pub struct BenchPoint {
     /// Against `reference` on the same frames (none for `reference` itself, or when
     /// `reference` is not run).
     pub flip_vs_reference: Option<FlipSummary>,
+    /// Stereo points: each eye against the same eye rendered as a mono view by the same
+    /// configuration on the same frame (issue 16's coupled-stereo bound).
+    #[serde(default)]
+    pub flip_vs_eyes_alone: Option<FlipSummary>,
 }
 
 /// A finished benchmark: what ran, where, and every point.
@@ -303,7 +348,9 @@ struct Samples {
     stage_ms: Vec<(String, Vec<f64>)>,
     rays: Vec<RayCounts>,
     voxels: Vec<u64>,
+    froxels: Vec<u64>,
     flip: Vec<f64>,
+    flip_alone: Vec<f64>,
     vs_reference: Vec<f64>,
     last: Option<FrameOutput>,
 }
@@ -328,6 +375,7 @@ impl Samples {
         }
         self.rays.push(s.rays);
         self.voxels.push(s.voxels_traced);
+        self.froxels.push(s.froxels_with_media);
         self.last = Some(out);
     }
 
@@ -363,6 +411,7 @@ impl Samples {
                 total: mean(|r| r.total),
             },
             voxels_updated: self.voxels.iter().sum::<u64>() / n,
+            froxels_with_media: self.froxels.iter().sum::<u64>() / n,
             grid_dims: stats.map_or([0; 3], |s| s.grid_dims),
             memory: stats.map_or(
                 MemoryBytes {
@@ -376,13 +425,66 @@ impl Samples {
                     total: s.memory.total,
                 },
             ),
-            flip_vs_reference: (!self.flip.is_empty()).then(|| FlipSummary {
-                mean: self.flip.iter().sum::<f64>() / self.flip.len() as f64,
-                max: self.flip.iter().copied().fold(0.0, f64::max),
-                images: self.flip.len(),
-            }),
+            flip_vs_reference: FlipSummary::of(&self.flip),
+            flip_vs_eyes_alone: FlipSummary::of(&self.flip_alone),
         }
     }
+}
+
+impl FlipSummary {
+    /// The summary of per-image means (none when empty).
+    fn of(flip: &[f64]) -> Option<FlipSummary> {
+        (!flip.is_empty()).then(|| FlipSummary {
+            mean: flip.iter().sum::<f64>() / flip.len() as f64,
+            max: flip.iter().copied().fold(0.0, f64::max),
+            images: flip.len(),
+        })
+    }
+}
+
+/// One frame of `cams` under `scenario`: stereo pairs as one frame of two eyes each
+/// (split back into one image per eye), every other camera as a mono view.
+fn render_point(
+    r: &mut Renderer,
+    scenario: Scenario,
+    cams: &[Camera],
+    (width, height): (u32, u32),
+    time_s: f32,
+) -> anyhow::Result<FrameOutput> {
+    let Scenario::Stereo { .. } = scenario else {
+        return r.render(cams, width, height, time_s);
+    };
+    let targets: Vec<FrameTarget> = cams
+        .chunks(2)
+        .enumerate()
+        .map(|(i, eyes)| FrameTarget {
+            width: 2 * width,
+            height,
+            view_width: width,
+            view_height: height,
+            views: eyes
+                .iter()
+                .enumerate()
+                .map(|(k, c)| TargetView {
+                    id: (2 * i + k) as ViewerId,
+                    camera: *c,
+                    origin: [k as u32 * width, 0],
+                })
+                .collect(),
+        })
+        .collect();
+    let out = r.render_targets(&targets, time_s)?;
+    let images = targets
+        .iter()
+        .zip(&out.images)
+        .flat_map(|(t, frame)| (0..t.views.len()).map(|k| t.tile(frame, k)))
+        .collect();
+    Ok(FrameOutput {
+        width,
+        height,
+        images,
+        stats: out.stats,
+    })
 }
 
 /// Every configuration's error against `truth` on one image.
@@ -438,6 +540,27 @@ fn against_truth(
         truth_s,
         flip,
     })
+}
+
+/// Every configuration's frame `outputs` (all rendered) against configuration `r`'s,
+/// into `samples`: FLIP per viewer and the paired time ratio.
+fn against_reference(
+    r: usize,
+    outputs: &[Option<FrameOutput>],
+    samples: &mut [Samples],
+) -> anyhow::Result<()> {
+    let ref_out = outputs[r].as_ref().expect("rendered");
+    for (i, o) in outputs.iter().enumerate() {
+        if i != r {
+            let o = o.as_ref().expect("rendered");
+            samples[i].flip.extend(flip_per_viewer(ref_out, o)?);
+            let base = frame_gpu_ms(ref_out);
+            if base > 0.0 {
+                samples[i].vs_reference.push(frame_gpu_ms(o) / base);
+            }
+        }
+    }
+    Ok(())
 }
 
 /// A frame's GPU time: the sum of its stages.
@@ -500,9 +623,19 @@ fn check(cfg: &BenchConfig) -> anyhow::Result<()> {
         cfg.overlaps_pct.is_empty() || !cfg.overlap_viewers.is_empty(),
         "--overlap-viewers: give at least one viewer count for --overlap"
     );
+    counts("--stereo", &cfg.stereo_sessions)?;
     anyhow::ensure!(
-        !cfg.viewers.is_empty() || !cfg.overlaps_pct.is_empty(),
-        "nothing to measure: --viewers is empty and no --overlap is given"
+        cfg.stereo_sessions.iter().all(|&n| n <= 32),
+        "--stereo: at most 32 sessions (64 eyes)"
+    );
+    anyhow::ensure!(
+        cfg.eye_distance_m.is_finite() && (0.0..=1.0).contains(&cfg.eye_distance_m),
+        "--eye-distance {}: must be 0..=1 metres",
+        cfg.eye_distance_m
+    );
+    anyhow::ensure!(
+        !cfg.viewers.is_empty() || !cfg.overlaps_pct.is_empty() || !cfg.stereo_sessions.is_empty(),
+        "nothing to measure: --viewers is empty and no --overlap or --stereo is given"
     );
     anyhow::ensure!(!cfg.configs.is_empty(), "no configuration to run");
     for v in &cfg.configs {
@@ -541,16 +674,31 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             plan.push((Scenario::Overlap { overlap_pct }, n));
         }
     }
+    let stereo = Scenario::Stereo {
+        eye_distance_m: cfg.eye_distance_m,
+    };
+    let eyes_alone = Scenario::StereoEyesAlone {
+        eye_distance_m: cfg.eye_distance_m,
+    };
+    for &sessions in &cfg.stereo_sessions {
+        plan.push((stereo, 2 * sessions));
+    }
     let frames_per_point = (cfg.warmup + cfg.frames) as usize;
+    // A stereo point renders its eyes twice: coupled, and each alone.
     let total: usize = plan
         .iter()
-        .map(|(_, n)| n * frames_per_point * cfg.configs.len())
+        .map(|(s, n)| {
+            let renders = if *s == stereo { 2 } else { 1 };
+            renders * n * frames_per_point * cfg.configs.len()
+        })
         .sum();
     let aspect = cfg.width as f32 / cfg.height as f32;
     let mut done = 0;
     let mut points = Vec::new();
     for &(scenario, n) in &plan {
         let mut samples: Vec<Samples> = cfg.configs.iter().map(|_| Samples::default()).collect();
+        let mut alone_samples: Vec<Samples> =
+            cfg.configs.iter().map(|_| Samples::default()).collect();
         for k in 0..frames_per_point {
             let t = cfg.time_s + k as f32 * FRAME_DT_S;
             let cams = scenario.cameras(&scene, n, t, aspect);
@@ -559,6 +707,7 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
                 order.reverse();
             }
             let mut outputs: Vec<Option<FrameOutput>> = cfg.configs.iter().map(|_| None).collect();
+            let mut alone: Vec<Option<FrameOutput>> = cfg.configs.iter().map(|_| None).collect();
             for i in order {
                 progress(&Progress {
                     done,
@@ -570,40 +719,63 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
                         k + 1
                     ),
                 });
-                let out = renderers[i]
-                    .render(&cams, cfg.width, cfg.height, t)
-                    .map_err(|e| {
-                        e.context(format!(
-                            "{} with {n} viewer(s), configuration '{}'",
-                            scenario.label(),
-                            cfg.configs[i].name
-                        ))
-                    })?;
+                let out = render_point(
+                    &mut renderers[i],
+                    scenario,
+                    &cams,
+                    (cfg.width, cfg.height),
+                    t,
+                )
+                .map_err(|e| {
+                    e.context(format!(
+                        "{} with {n} viewer(s), configuration '{}'",
+                        scenario.label(),
+                        cfg.configs[i].name
+                    ))
+                })?;
                 outputs[i] = Some(out);
                 done += n;
+                if scenario == stereo {
+                    let out = render_point(
+                        &mut renderers[i],
+                        eyes_alone,
+                        &cams,
+                        (cfg.width, cfg.height),
+                        t,
+                    )?;
+                    alone[i] = Some(out);
+                    done += n;
+                }
             }
             if k < cfg.warmup as usize {
                 continue;
             }
             if let Some(r) = reference {
-                let ref_out = outputs[r].as_ref().expect("rendered above");
-                for (i, o) in outputs.iter().enumerate() {
-                    if i != r {
-                        let o = o.as_ref().expect("rendered above");
-                        samples[i].flip.extend(flip_per_viewer(ref_out, o)?);
-                        let base = frame_gpu_ms(ref_out);
-                        if base > 0.0 {
-                            samples[i].vs_reference.push(frame_gpu_ms(o) / base);
-                        }
-                    }
+                against_reference(r, &outputs, &mut samples)?;
+                if scenario == stereo {
+                    against_reference(r, &alone, &mut alone_samples)?;
                 }
             }
-            for (s, o) in samples.iter_mut().zip(outputs) {
-                s.add(o.expect("rendered above"));
+            for ((s, o), (a, sa)) in samples
+                .iter_mut()
+                .zip(outputs)
+                .zip(alone.into_iter().zip(alone_samples.iter_mut()))
+            {
+                let o = o.expect("rendered above");
+                if let Some(a) = a {
+                    s.flip_alone.extend(flip_per_viewer(&a, &o)?);
+                    sa.add(a);
+                }
+                s.add(o);
             }
         }
         for (s, v) in samples.into_iter().zip(&cfg.configs) {
             points.push(s.point(scenario, n, v));
+        }
+        if scenario == stereo {
+            for (s, v) in alone_samples.into_iter().zip(&cfg.configs) {
+                points.push(s.point(eyes_alone, n, v));
+            }
         }
     }
     let truth = if cfg.truth > 0 {

@@ -23,6 +23,11 @@ pub const MAX_TIME_RATIO_14: f64 = 0.35;
 pub const MAX_MARGINAL_VIEWER: f64 = 0.25;
 /// Issue 14's bound on `shared`'s frame time against `maps`' at the most viewers.
 pub const MAX_TIME_VS_MAPS: f64 = 0.8;
+/// Issue 16's bounds: one stereo session's frame time against one mono view of one
+/// eye's size, and each coupled eye's mean FLIP against that eye rendered alone.
+pub const MAX_STEREO_COST: f64 = 1.3;
+/// See [`MAX_STEREO_COST`].
+pub const MAX_STEREO_FLIP: f64 = 0.02;
 
 /// One of issue 5's acceptance checks, evaluated on a report.
 #[derive(Debug, Clone, PartialEq)]
@@ -326,6 +331,7 @@ fn csv(r: &BenchReport) -> Table {
     let mut headers: Vec<String> = [
         "scenario",
         "overlap_pct",
+        "eye_distance_m",
         "viewers",
         "config",
         "mode",
@@ -356,6 +362,8 @@ fn csv(r: &BenchReport) -> Table {
             "memory_total_bytes",
             "flip_mean",
             "flip_max",
+            "flip_vs_eyes_alone_mean",
+            "flip_vs_eyes_alone_max",
         ]
         .iter()
         .map(|s| s.to_string()),
@@ -365,13 +373,22 @@ fn csv(r: &BenchReport) -> Table {
         rows: Vec::new(),
     };
     for p in &r.points {
-        let (scenario, overlap) = match p.scenario {
-            Scenario::Path => ("path", String::new()),
-            Scenario::Overlap { overlap_pct } => ("overlap", overlap_pct.to_string()),
+        let (scenario, overlap, eye) = match p.scenario {
+            Scenario::Path => ("path", String::new(), String::new()),
+            Scenario::Overlap { overlap_pct } => {
+                ("overlap", overlap_pct.to_string(), String::new())
+            }
+            Scenario::Stereo { eye_distance_m } => {
+                ("stereo", String::new(), eye_distance_m.to_string())
+            }
+            Scenario::StereoEyesAlone { eye_distance_m } => {
+                ("eyes_alone", String::new(), eye_distance_m.to_string())
+            }
         };
         let mut row = vec![
             scenario.to_string(),
             overlap,
+            eye,
             p.viewers.to_string(),
             p.config.clone(),
             p.mode.name().into(),
@@ -401,6 +418,10 @@ fn csv(r: &BenchReport) -> Table {
             p.flip_vs_reference
                 .map_or(String::new(), |f| format!("{:.5}", f.mean)),
             p.flip_vs_reference
+                .map_or(String::new(), |f| format!("{:.5}", f.max)),
+            p.flip_vs_eyes_alone
+                .map_or(String::new(), |f| format!("{:.5}", f.mean)),
+            p.flip_vs_eyes_alone
                 .map_or(String::new(), |f| format!("{:.5}", f.max)),
         ]);
         t.push(row);
@@ -709,7 +730,111 @@ fn markdown(r: &BenchReport) -> String {
             );
         }
     }
-    md + &overlap_tables(r)
+    md + &overlap_tables(r) + &stereo_tables(r)
+}
+
+/// The stereo scenario's eye distance, if it ran.
+fn stereo_scenarios(r: &BenchReport) -> Option<(Scenario, Scenario)> {
+    r.points.iter().find_map(|p| match p.scenario {
+        Scenario::Stereo { eye_distance_m } => {
+            Some((p.scenario, Scenario::StereoEyesAlone { eye_distance_m }))
+        }
+        _ => None,
+    })
+}
+
+/// Issue 16's checks, per configuration: one stereo session's frame time against one
+/// path viewer's (a mono view of one eye's size), and the coupled eyes' FLIP against
+/// the eyes alone at the most sessions.
+pub fn stereo_checks(r: &BenchReport) -> Vec<Check> {
+    let Some((stereo, _)) = stereo_scenarios(r) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for c in &r.configs {
+        let c = c.name.as_str();
+        if let (Some(s), Some(m)) = (point(r, stereo, c, 2), point(r, Scenario::Path, c, 1)) {
+            out.push(Check {
+                what: format!("{c}: one stereo session's frame GPU ms / one mono view's"),
+                value: ratio(s.frame_gpu_ms.median, m.frame_gpu_ms.median),
+                bound: Some(MAX_STEREO_COST),
+            });
+        }
+        if let Some(f) = series_of(r, stereo, c)
+            .last()
+            .and_then(|p| p.flip_vs_eyes_alone.map(|f| (p.viewers, f)))
+        {
+            out.push(Check {
+                what: format!(
+                    "{c}: mean FLIP of {} coupled eyes against each eye alone",
+                    f.0
+                ),
+                value: f.1.mean,
+                bound: Some(MAX_STEREO_FLIP),
+            });
+        }
+    }
+    out
+}
+
+fn stereo_tables(r: &BenchReport) -> String {
+    let Some((stereo, alone)) = stereo_scenarios(r) else {
+        return String::new();
+    };
+    let Scenario::Stereo { eye_distance_m } = stereo else {
+        return String::new();
+    };
+    let mut t = Table::new(&[
+        "sessions (eyes)",
+        "configuration",
+        "stereo frame GPU ms",
+        "eyes as mono views",
+        "stereo / mono",
+        "froxels lit: stereo / mono",
+        "FLIP against eyes alone: mean (worst eye)",
+    ]);
+    for n in viewer_counts(r, stereo) {
+        for c in &r.configs {
+            let (Some(s), Some(a)) = (point(r, stereo, &c.name, n), point(r, alone, &c.name, n))
+            else {
+                continue;
+            };
+            t.push(vec![
+                format!("{} ({n})", n / 2),
+                c.name.clone(),
+                ms(&s.frame_gpu_ms),
+                ms(&a.frame_gpu_ms),
+                format!("{:.2}", ratio(s.frame_gpu_ms.median, a.frame_gpu_ms.median)),
+                format!("{} / {}", s.froxels_with_media, a.froxels_with_media),
+                s.flip_vs_eyes_alone
+                    .map_or("–".into(), |f| format!("{:.4} ({:.4})", f.mean, f.max)),
+            ]);
+        }
+    }
+    let mut checks = Table::new(&["check", "measured", "bound", "result"]);
+    for c in stereo_checks(r) {
+        checks.push(vec![
+            c.what.clone(),
+            format!("{:.3}", c.value),
+            c.bound.map_or("–".into(), |b| format!("≤ {b}")),
+            if c.passed() {
+                "pass".into()
+            } else {
+                "**fail**".into()
+            },
+        ]);
+    }
+    format!(
+        "\n## Stereo sessions (issue 16)\n\nHeads spread along the path as in the path \
+         scenario; each is a stereo session, its two eyes {eye_distance_m} m apart side by \
+         side in one frame (coupled stereo shares one froxel volume when the eyes are at \
+         most `stereo_share_m` apart). On the same frame every eye is rendered again as a \
+         mono view of its own: the cost two independent views would have, and the image \
+         the coupled eye is compared with.\n\n{}\n### Acceptance checks (issue 16)\n\n\
+         One mono view is the path scenario's one viewer (the head's camera).\n\n{}",
+        t.to_markdown(),
+        checks.to_markdown()
+    )
 }
 
 fn plots(r: &BenchReport, out: &Path) -> anyhow::Result<()> {

@@ -2,7 +2,7 @@
 //! one dispatch, with `shaders/froxel_lighting.wgsl` (and `shaders/shadow_lookup.wgsl`
 //! for `maps` mode).
 
-use super::gpu_types::{ViewGpu, NO_HISTORY};
+use super::gpu_types::ViewGpu;
 use super::shadow_maps::ShadowMaps;
 use super::{dispatch, SharedShadowGrid, Stage, Timestamps, ViewerId, ViewerSet, ViewerVolumes};
 use crate::gpu::Access::{Read, ReadWrite};
@@ -68,18 +68,17 @@ impl FroxelHistory {
             return;
         }
         std::mem::swap(&mut vol.froxels, &mut vol.froxel_history);
-        for (id, v) in ids.iter().zip(views) {
+        for (slot, (id, v)) in ids.iter().zip(views).enumerate() {
+            // A coupled stereo eye wrote no froxels (it read its partner's).
+            if v.volume_view != slot as u32 {
+                continue;
+            }
             let h = ViewerHistory {
                 view_proj: Mat4::from_cols_array_2d(&v.view_proj),
                 froxel_base: v.froxel_base,
             };
             self.viewers.insert(*id, h);
         }
-    }
-
-    /// `ViewGpu::history_base` of viewer `id` (`NO_HISTORY` without).
-    pub(crate) fn base(&self, id: ViewerId) -> u32 {
-        self.of(id).map_or(NO_HISTORY, |h| h.froxel_base)
     }
 }
 

@@ -105,7 +105,10 @@ pub(crate) struct ViewGpu {
     pub row_stride: u32,
     /// Where this viewer's froxels start in last frame's froxels ([`NO_HISTORY`]: none).
     pub history_base: u32,
-    pub _pad: [u32; 2],
+    /// The slot whose froxel volume this view reads: its own, or (coupled stereo) its
+    /// partner's, which lit one volume for both (viewer_set.rs, `stereo_pairs`).
+    pub volume_view: u32,
+    pub _pad: u32,
 }
 
 /// `ViewGpu::history_base` of a viewer without last frame's froxels.

@@ -240,9 +240,24 @@ settings! {
     /// the constant ambient of the fog, the smoke and the surfaces.
     #[serde(default)]
     sh_ambient_m: f32 = 0.0;
+
+    /// Coupled stereo: two views of one frame (a stereo session's eyes, or split views
+    /// that nearly coincide) with the same orientation and field of view, whose eyes lie
+    /// at most this far apart, light one froxel volume, metres (0: only coincident views).
+    ///
+    /// The first view lights and integrates it; the other's composite reads it at its
+    /// pixels' world points, projected into the first view (src/render/viewer_set.rs,
+    /// `stereo_pairs`). Wider pairs light their own volumes (docs/decisions.md,
+    /// "Coupled stereo").
+    #[serde(default = "default_stereo_share_m")]
+    stereo_share_m: f32 = default_stereo_share_m();
 }
 
 // What reports from before these settings existed read as (and their defaults).
+fn default_stereo_share_m() -> f32 {
+    0.07
+}
+
 fn default_transmittance_voxel_m() -> f32 {
     0.5
 }
@@ -586,6 +601,11 @@ impl Settings {
                 || (self.sh_ambient_m.is_finite() && self.sh_ambient_m >= 0.01),
             "sh_ambient_m={}: must be 0 (the constant ambient) or at least 0.01 m",
             self.sh_ambient_m
+        );
+        anyhow::ensure!(
+            self.stereo_share_m.is_finite() && (0.0..=10.0).contains(&self.stereo_share_m),
+            "stereo_share_m={}: must be 0..=10 metres",
+            self.stereo_share_m
         );
         anyhow::ensure!(
             self.mode != Mode::Maps || self.shadow_map_px > 0,

@@ -49,6 +49,40 @@ impl FrameTarget {
         }
     }
 
+    /// A stereo session's frame: two `width`×`height` eyes side by side (as the server
+    /// tiles them), the left one (id `id`) and the right one (`id + 1`) `head` moved
+    /// ∓`eye_m`/2 along its right vector.
+    pub fn stereo(id: ViewerId, head: Camera, eye_m: f32, width: u32, height: u32) -> FrameTarget {
+        let right = head.forward.cross(head.up()).normalize();
+        let eye = |i: u32, offset: f32| TargetView {
+            id: id + i as ViewerId,
+            camera: Camera {
+                position: head.position + right * offset,
+                ..head
+            },
+            origin: [i * width, 0],
+        };
+        FrameTarget {
+            width: 2 * width,
+            height,
+            view_width: width,
+            view_height: height,
+            views: vec![eye(0, -0.5 * eye_m), eye(1, 0.5 * eye_m)],
+        }
+    }
+
+    /// Viewer `i`'s tile of this target's RGBA8 `frame`, tightly packed.
+    pub fn tile(&self, frame: &[u8], i: usize) -> Vec<u8> {
+        let [x0, y0] = self.views[i].origin;
+        let row = self.view_width as usize * 4;
+        (y0..y0 + self.view_height)
+            .flat_map(|y| {
+                let start = (y as usize * self.width as usize + x0 as usize) * 4;
+                frame[start..start + row].iter().copied()
+            })
+            .collect()
+    }
+
     pub(crate) fn pixels(&self) -> u64 {
         self.width as u64 * self.height as u64
     }

@@ -6,11 +6,12 @@
 
 use super::froxel_lighting::FroxelHistory;
 use super::gbuffer::RasterView;
-use super::gpu_types::{FrameGpu, ViewGpu};
+use super::gpu_types::{FrameGpu, ViewGpu, NO_HISTORY};
 use super::scene_gpu::SceneGpu;
 use super::smoke_view::SmokeBuffers;
 use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
 use crate::gpu::GpuContext;
+use crate::scene::Camera;
 
 /// A viewer's identity across frames (a session's view: session id and view index).
 pub type ViewerId = u64;
@@ -156,19 +157,24 @@ impl ViewerSet {
         self.ids.clear();
         let mut first_pixel = 0u64;
         for &(index, t) in targets {
+            let cameras: Vec<Camera> = t.views.iter().map(|v| v.camera).collect();
+            let partners = stereo_pairs(&cameras, settings.stereo_share_m);
+            let first_slot = self.ids.len() as u32;
             self.targets.push(TargetSlice {
                 target: index,
                 first_pixel,
                 pixels: t.pixels(),
             });
-            for v in &t.views {
+            for (v, partner) in t.views.iter().zip(partners) {
                 let slot = self.ids.len() as u32;
+                let volume_view = partner.map_or(slot, |p| first_slot + p as u32);
                 let c = &v.camera;
                 let vp = c.projection(aspect, near, far) * c.view();
                 let right = c.forward.cross(c.up()).normalize();
                 let up = right.cross(c.forward);
                 let tan_y = (c.fov_y * 0.5).tan();
-                let history = self.history.of(v.id);
+                // A view reading its partner's volume keeps no froxels of its own.
+                let history = self.history.of(v.id).filter(|_| volume_view == slot);
                 self.gpu_views.push(ViewGpu {
                     view_proj: vp.to_cols_array_2d(),
                     prev_view_proj: history.map_or(vp, |h| h.view_proj).to_cols_array_2d(),
@@ -192,8 +198,9 @@ impl ViewerSet {
                         + v.origin[0] as u64) as u32,
                     jitter: frame_jitter(settings, frame.frame_index),
                     row_stride: t.width,
-                    history_base: self.history.base(v.id),
-                    _pad: [0; 2],
+                    history_base: history.map_or(NO_HISTORY, |h| h.froxel_base),
+                    volume_view,
+                    _pad: 0,
                 });
                 self.ids.push(v.id);
             }
@@ -229,6 +236,29 @@ impl ViewerSet {
         self.history
             .finish(&mut self.vol, &self.ids, &self.gpu_views, keep);
     }
+}
+
+/// Coupled stereo: for each of one frame's `cameras`, the earlier camera whose froxel
+/// volume it reads (`None`: it lights its own). A camera shares with the first earlier
+/// one that lights its own volume, looks the same way with the same field of view and
+/// stands at most `share_m` from it: a stereo session's eyes at a normal eye distance,
+/// or split views that nearly coincide. Its composite then reads that volume at its
+/// pixels' world points (`fog_to` in shaders/integrated_lookup.wgsl); the error is the
+/// two eyes' parallax inside the volume, which docs/decisions.md ("Coupled stereo")
+/// measures against the eye rendered alone.
+pub(crate) fn stereo_pairs(cameras: &[Camera], share_m: f32) -> Vec<Option<usize>> {
+    let mut partners: Vec<Option<usize>> = Vec::with_capacity(cameras.len());
+    for (j, c) in cameras.iter().enumerate() {
+        let partner = (0..j).find(|&i| {
+            let o = &cameras[i];
+            partners[i].is_none()
+                && o.forward.dot(c.forward) > 1.0 - 1e-6
+                && (o.fov_y - c.fov_y).abs() <= 1e-6
+                && o.position.distance(c.position) <= share_m
+        });
+        partners.push(partner);
+    }
+    partners
 }
 
 /// Per-frame jitter along the view ray (a 1-D low-discrepancy sequence, centred) with

@@ -1,0 +1,187 @@
+//! Coupled stereo (issue 16): a stereo session's two eyes light one froxel volume when
+//! they stand at most `stereo_share_m` apart. The left eye lights and integrates it; the
+//! right eye's composite reads it at its pixels' world points. Each eye must stay within
+//! mean FLIP 0.02 of rendering that eye alone, while the froxels lit per frame halve.
+//! Eye distance 0 shares fully (both eyes identical); a wide pair (1 m) falls back to
+//! two volumes and is exactly two eyes rendered alone; a 1×1 eye still renders.
+
+mod gpu_support;
+
+use fogcast::metrics::compare;
+use fogcast::render::{FrameTarget, Renderer, Settings, TargetsOutput as FrameOutput};
+use fogcast::scene::{Camera, Scene};
+use gpu_support::{colonnade, gpu};
+use std::sync::Arc;
+
+const W: u32 = 128;
+const H: u32 = 72;
+const TIME: f32 = 0.5;
+
+/// The head: the colonnade's first path camera.
+fn head(scene: &Scene) -> Camera {
+    scene.camera.viewers(1, TIME)[0]
+}
+
+/// One frame of `targets` from a fresh renderer (no history, no cached grid).
+fn render(scene: &Arc<Scene>, settings: Settings, targets: &[FrameTarget]) -> FrameOutput {
+    let mut r = Renderer::new(gpu(), scene.clone(), settings).unwrap();
+    r.render_targets(targets, TIME).unwrap()
+}
+
+/// The stereo session's two eyes, and its frame's stats.
+fn stereo(
+    scene: &Arc<Scene>,
+    settings: Settings,
+    eye_m: f32,
+    (w, h): (u32, u32),
+) -> ([Vec<u8>; 2], FrameOutput) {
+    let t = FrameTarget::stereo(0, head(scene), eye_m, w, h);
+    let out = render(scene, settings, std::slice::from_ref(&t));
+    ([t.tile(&out.images[0], 0), t.tile(&out.images[0], 1)], out)
+}
+
+/// Each eye of the session rendered alone, as a mono view of its own.
+fn alone(
+    scene: &Arc<Scene>,
+    settings: Settings,
+    eye_m: f32,
+    (w, h): (u32, u32),
+) -> [(Vec<u8>, FrameOutput); 2] {
+    let t = FrameTarget::stereo(0, head(scene), eye_m, w, h);
+    [0, 1].map(|i| {
+        let one = FrameTarget::single(0, t.views[i].camera, w, h);
+        let out = render(scene, settings, &[one]);
+        (out.images[0].clone(), out)
+    })
+}
+
+fn flip(a: &[u8], b: &[u8], (w, h): (u32, u32)) -> f64 {
+    compare(a, b, w, h).unwrap().flip_mean
+}
+
+#[test]
+fn coupled_eyes_light_one_volume_within_flip_0_02_of_each_eye_alone() {
+    let scene = colonnade();
+    let settings = Settings::default();
+    assert!(
+        settings.stereo_share_m >= 0.064,
+        "a normal eye distance shares by default"
+    );
+    let eye_m = 0.064;
+    let (coupled, c) = stereo(&scene, settings, eye_m, (W, H));
+    let independent = Settings {
+        stereo_share_m: 0.0,
+        ..settings
+    };
+    let (two, t) = stereo(&scene, independent, eye_m, (W, H));
+    let [(left, l), (right, r)] = alone(&scene, settings, eye_m, (W, H));
+    let lit = |o: &FrameOutput| o.stats.froxels_with_media;
+    let errors = [
+        flip(&left, &coupled[0], (W, H)),
+        flip(&right, &coupled[1], (W, H)),
+    ];
+    println!(
+        "froxels lit: coupled {}, independent {}, eyes alone {} + {}; FLIP against each \
+         eye alone: {errors:?}",
+        lit(&c),
+        lit(&t),
+        lit(&l),
+        lit(&r)
+    );
+    // Without coupling the two eyes are exactly the two eyes alone.
+    assert!(
+        two[0] == left && two[1] == right,
+        "independent eyes differ from alone"
+    );
+    assert_eq!(lit(&t), lit(&l) + lit(&r));
+    // Coupled: one volume, lit for the left eye (plus what the right eye's tiles add to
+    // its culling), so about half the froxels.
+    assert!(lit(&c) >= lit(&l), "the shared volume covers the left eye");
+    assert!(
+        (lit(&c) as f64) < 0.6 * lit(&t) as f64,
+        "coupled eyes lit {} froxels, two volumes {}",
+        lit(&c),
+        lit(&t)
+    );
+    // The left eye reads its own volume: what it shows is what it shows alone.
+    assert!(errors[0] < 1e-3, "left eye: FLIP {}", errors[0]);
+    assert!(
+        errors[1] <= 0.02,
+        "right eye: FLIP {} against alone",
+        errors[1]
+    );
+    // And it is not the left eye's picture: the right eye has its own parallax.
+    assert!(coupled[1] != coupled[0]);
+}
+
+#[test]
+fn eye_distance_zero_shares_fully_and_the_eyes_are_identical() {
+    let scene = colonnade();
+    let settings = Settings::default();
+    let (eyes, c) = stereo(&scene, settings, 0.0, (W, H));
+    let [(left, l), _] = alone(&scene, settings, 0.0, (W, H));
+    assert!(eyes[0] == eyes[1], "both eyes at one point see the same");
+    assert!(eyes[0] == left, "and what one eye alone sees");
+    assert_eq!(
+        c.stats.froxels_with_media, l.stats.froxels_with_media,
+        "one volume for both"
+    );
+}
+
+#[test]
+fn a_one_metre_eye_distance_falls_back_to_two_volumes_exactly() {
+    let scene = colonnade();
+    let settings = Settings::default();
+    assert!(settings.stereo_share_m < 1.0);
+    let (eyes, c) = stereo(&scene, settings, 1.0, (W, H));
+    let [(left, l), (right, r)] = alone(&scene, settings, 1.0, (W, H));
+    assert!(eyes[0] == left && eyes[1] == right, "each eye as alone");
+    assert_eq!(
+        c.stats.froxels_with_media,
+        l.stats.froxels_with_media + r.stats.froxels_with_media
+    );
+    assert!(eyes[0] != eyes[1]);
+}
+
+/// The crossover behind `stereo_share_m`'s default: the right eye's error against
+/// rendering it alone when coupling is forced at growing eye distances.
+#[test]
+fn the_coupled_eyes_error_grows_with_the_eye_distance() {
+    let scene = colonnade();
+    let forced = Settings {
+        stereo_share_m: 10.0,
+        ..Settings::default()
+    };
+    let mut errors = Vec::new();
+    for eye_m in [0.032f32, 0.064, 0.07, 0.1, 0.2, 0.5, 1.0] {
+        let (coupled, _) = stereo(&scene, forced, eye_m, (W, H));
+        let [_, (right, _)] = alone(&scene, forced, eye_m, (W, H));
+        let e = flip(&right, &coupled[1], (W, H));
+        println!("eye distance {eye_m} m: right eye FLIP {e:.4} against alone");
+        errors.push((eye_m, e));
+    }
+    let at = |m: f32| errors.iter().find(|(d, _)| *d == m).unwrap().1;
+    assert!(at(Settings::default().stereo_share_m) <= 0.02);
+    assert!(at(1.0) > at(0.064), "a wider pair errs more: {errors:?}");
+}
+
+#[test]
+fn one_pixel_eyes_render_and_share() {
+    let scene = colonnade();
+    let settings = Settings::default();
+    let (eyes, c) = stereo(&scene, settings, 0.064, (1, 1));
+    let [(left, _), (right, _)] = alone(&scene, settings, 0.064, (1, 1));
+    println!("1×1 eyes: {eyes:?}, alone {left:?} {right:?}");
+    assert_eq!(c.stats.viewers, 2);
+    for (eye, solo) in eyes.iter().zip([&left, &right]) {
+        assert_eq!(eye.len(), 4);
+        assert!(eye[..3].iter().any(|&c| c > 0), "a black eye: {eye:?}");
+        let diff = eye[..3]
+            .iter()
+            .zip(&solo[..3])
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap();
+        assert!(diff <= 8, "{eye:?} against alone {solo:?}");
+    }
+}
