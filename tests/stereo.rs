@@ -80,14 +80,22 @@ fn coupled_eyes_light_one_volume_within_flip_0_02_of_each_eye_alone() {
         flip(&left, &coupled[0], (W, H)),
         flip(&right, &coupled[1], (W, H)),
     ];
+    let reused = c.stats.stereo_surfaces_reused;
     println!(
-        "froxels lit: coupled {}, independent {}, eyes alone {} + {}; FLIP against each \
-         eye alone: {errors:?}",
+        "froxels lit: coupled {}, independent {}, eyes alone {} + {}; right eye's surfaces \
+         from the left: {reused} of {} pixels; FLIP against each eye alone: {errors:?}",
         lit(&c),
         lit(&t),
         lit(&l),
-        lit(&r)
+        lit(&r),
+        W * H
     );
+    // Most of the right eye's surfaces are the left eye's, not shaded twice.
+    assert!(
+        reused as f64 > 0.5 * (W * H) as f64,
+        "{reused} surfaces reused"
+    );
+    assert_eq!(t.stats.stereo_surfaces_reused, 0);
     // Without coupling the two eyes are exactly the two eyes alone.
     assert!(
         two[0] == left && two[1] == right,

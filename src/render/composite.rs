@@ -8,6 +8,8 @@ use crate::gpu::{storage_entry, GpuContext};
 pub(crate) struct Composite {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    /// After `pipeline`: the coupled stereo eyes, which read their partners' surfaces.
+    coupled: wgpu::ComputePipeline,
     /// Bound as the smoke layers of a set without them (never read: no particles).
     no_smoke: wgpu::Texture,
 }
@@ -37,6 +39,7 @@ impl Composite {
                 texture_entry(3),
                 texture_entry(4),
                 texture_entry(5),
+                storage_entry(6, ReadWrite),
             ],
         );
         let module = super::stage_shader(
@@ -64,6 +67,12 @@ impl Composite {
         });
         Composite {
             pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),
+            coupled: ctx.compute_pipeline_entry(
+                "composite coupled",
+                &module,
+                &[scene_layout, &layout],
+                "coupled",
+            ),
             layout,
             no_smoke,
         }
@@ -115,15 +124,22 @@ impl Composite {
                 binding: 5,
                 resource: wgpu::BindingResource::TextureView(&smoke),
             },
+            wgpu::BindGroupEntry {
+                binding: 6,
+                resource: volumes.surface.as_entire_binding(),
+            },
         ];
         let bg = maps.stage_bind_group(ctx, "composite", &self.layout, entries);
-        dispatch(
-            enc,
-            ts,
-            Stage::Composite,
-            &self.pipeline,
-            &[&set.bind_group, &bg],
-            volumes.groups.pixels,
-        );
+        let pipelines = [&self.pipeline, &self.coupled];
+        for pipeline in &pipelines[..if set.coupled { 2 } else { 1 }] {
+            dispatch(
+                enc,
+                ts,
+                Stage::Composite,
+                pipeline,
+                &[&set.bind_group, &bg],
+                volumes.groups.pixels,
+            );
+        }
     }
 }

@@ -18,9 +18,11 @@ pub(crate) const FLAG_MAPS: u32 = 2048;
 pub(crate) const FLAG_LAYER_FULL: u32 = 4096;
 /// Ambient light from the shared SH grid (ambient_grid.rs), not the constant `ambient`.
 pub(crate) const FLAG_SH_AMBIENT: u32 = 8192;
+/// Coupled stereo: some view of the set reads its partner's volume and surfaces.
+pub(crate) const FLAG_COUPLED: u32 = 16384;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
-pub(crate) const COUNTERS: usize = 11;
+pub(crate) const COUNTERS: usize = 12;
 pub(crate) const C_GRID_RAYS: usize = 0;
 pub(crate) const C_FRUSTUM_RAYS: usize = 1;
 pub(crate) const C_LIGHTING_RAYS: usize = 2;
@@ -32,6 +34,7 @@ pub(crate) const C_BRICKS: usize = 7;
 pub(crate) const C_TRANSMITTANCE_NODES: usize = 8;
 pub(crate) const C_LAYER_BRICKS: usize = 9;
 pub(crate) const C_LAYER_NODES: usize = 10;
+pub(crate) const C_SURFACES_REUSED: usize = 11;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]

@@ -6,7 +6,7 @@
 
 use super::froxel_lighting::FroxelHistory;
 use super::gbuffer::RasterView;
-use super::gpu_types::{FrameGpu, ViewGpu, NO_HISTORY};
+use super::gpu_types::{FrameGpu, ViewGpu, FLAG_COUPLED, NO_HISTORY};
 use super::scene_gpu::SceneGpu;
 use super::smoke_view::SmokeBuffers;
 use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
@@ -47,6 +47,8 @@ pub(crate) struct ViewerSet {
     ids: Vec<ViewerId>,
     /// Froxel lighting's temporal history of these viewers, keyed by id.
     pub(crate) history: FroxelHistory,
+    /// Whether some view reads its partner's volume this frame (coupled stereo).
+    pub(crate) coupled: bool,
 }
 
 impl ViewerSet {
@@ -71,6 +73,7 @@ impl ViewerSet {
             targets: Vec::new(),
             ids: Vec::new(),
             history: FroxelHistory::default(),
+            coupled: false,
         })
     }
 
@@ -155,6 +158,7 @@ impl ViewerSet {
         self.raster_views.clear();
         self.targets.clear();
         self.ids.clear();
+        self.coupled = false;
         let mut first_pixel = 0u64;
         for &(index, t) in targets {
             let cameras: Vec<Camera> = t.views.iter().map(|v| v.camera).collect();
@@ -168,6 +172,7 @@ impl ViewerSet {
             for (v, partner) in t.views.iter().zip(partners) {
                 let slot = self.ids.len() as u32;
                 let volume_view = partner.map_or(slot, |p| first_slot + p as u32);
+                self.coupled |= partner.is_some();
                 let c = &v.camera;
                 let vp = c.projection(aspect, near, far) * c.view();
                 let right = c.forward.cross(c.up()).normalize();
@@ -215,8 +220,12 @@ impl ViewerSet {
             near,
             far,
         );
+        if self.coupled {
+            self.vol.ensure_surface(ctx)?;
+        }
         let frame = FrameGpu {
             view_count: count as u32,
+            flags: frame.flags | if self.coupled { FLAG_COUPLED } else { 0 },
             ..frame
         };
         ctx.queue
