@@ -56,6 +56,10 @@ struct Frame {
     sh_cell: f32,
     sh_dims: vec3u,
     sh_probes: u32,
+    volume_views: u32, // coupled stereo: slots below light their own volumes, the rest read a partner's
+    _pad_frame0: u32,
+    _pad_frame1: u32,
+    _pad_frame2: u32,
 }
 
 // Frame.flags

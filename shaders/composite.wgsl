@@ -170,18 +170,20 @@ fn shade_pixel(v: View, slot: u32, xy: vec2u, coupled: bool, rays: ptr<function,
 // work on 8 neighbouring pixels at a time (coherent shadow rays in `reference`).
 const STRIP: u32 = 4u;
 
-// The pixels of every view for which `coupled` says whether it is a coupled stereo eye
-// (v.volume_view ≠ its slot); z runs over viewers.
+// The pixels of the views that shade their own surfaces (slots below
+// frame.volume_views), or with `coupled` of the coupled stereo eyes (the slots from
+// there on); z runs over those views.
 fn composite_views(gid: vec3u, wg: vec3u, lid: vec3u, coupled: bool) {
     var rays = 0u;
     var reused = 0u;
-    if gid.z < frame.view_count {
-        let v = views[gid.z];
-        if gid.y < v.size.y && (v.volume_view != gid.z) == coupled {
+    let slot = gid.z + select(0u, frame.volume_views, coupled);
+    if slot < frame.view_count {
+        let v = views[slot];
+        if gid.y < v.size.y {
             for (var k = 0u; k < STRIP; k++) {
                 let x = (wg.x * STRIP + k) * 8u + lid.x;
                 if x < v.size.x {
-                    output[v.pixel_base + x + gid.y * v.row_stride] = shade_pixel(v, gid.z, vec2u(x, gid.y), coupled, &rays, &reused);
+                    output[v.pixel_base + x + gid.y * v.row_stride] = shade_pixel(v, slot, vec2u(x, gid.y), coupled, &rays, &reused);
                 }
             }
         }

@@ -130,16 +130,21 @@ impl Composite {
             },
         ];
         let bg = maps.stage_bind_group(ctx, "composite", &self.layout, entries);
-        let pipelines = [&self.pipeline, &self.coupled];
-        for pipeline in &pipelines[..if set.coupled { 2 } else { 1 }] {
-            dispatch(
-                enc,
-                ts,
-                Stage::Composite,
-                pipeline,
-                &[&set.bind_group, &bg],
-                volumes.groups.pixels,
-            );
+        // The views that shade their own surfaces, then (slots from `volume_views` on)
+        // the coupled eyes that read them.
+        let [x, y, n] = volumes.groups.pixels;
+        let own = set.volume_views;
+        for (pipeline, z) in [(&self.pipeline, own), (&self.coupled, n - own)] {
+            if z > 0 {
+                dispatch(
+                    enc,
+                    ts,
+                    Stage::Composite,
+                    pipeline,
+                    &[&set.bind_group, &bg],
+                    [x, y, z],
+                );
+            }
         }
     }
 }

@@ -75,14 +75,21 @@ impl FroxelCull {
                 },
             ],
         });
-        for pipeline in [&self.tile_max, &self.column_limit] {
+        // Every view's tiles (a coupled eye's widen its partner's limits), then the
+        // limits of the views that light their own volume.
+        let [x, y, _] = volumes.groups.columns;
+        let all = [x, y, volumes.count as u32];
+        for (pipeline, groups) in [
+            (&self.tile_max, all),
+            (&self.column_limit, volumes.groups.columns),
+        ] {
             dispatch(
                 enc,
                 ts,
                 Stage::GridRequests,
                 pipeline,
                 &[&set.bind_group, &bg],
-                volumes.groups.columns,
+                groups,
             );
         }
     }

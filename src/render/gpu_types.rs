@@ -80,6 +80,10 @@ pub(crate) struct FrameGpu {
     pub sh_cell: f32,
     pub sh_dims: [u32; 3],
     pub sh_probes: u32,
+    /// Coupled stereo: slots `0..volume_views` light their own froxel volumes; the rest
+    /// are eyes that read their partner's (viewer_set.rs).
+    pub volume_views: u32,
+    pub _pad_frame: [u32; 3],
 }
 
 #[repr(C)]
@@ -230,7 +234,7 @@ impl From<&Medium> for MediumGpu {
     }
 }
 
-const _: () = assert!(std::mem::size_of::<FrameGpu>() == 224);
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 240);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);

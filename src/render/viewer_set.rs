@@ -49,6 +49,8 @@ pub(crate) struct ViewerSet {
     pub(crate) history: FroxelHistory,
     /// Whether some view reads its partner's volume this frame (coupled stereo).
     pub(crate) coupled: bool,
+    /// Views that light their own froxel volume this frame: slots `0..volume_views`.
+    pub(crate) volume_views: u32,
 }
 
 impl ViewerSet {
@@ -74,6 +76,7 @@ impl ViewerSet {
             ids: Vec::new(),
             history: FroxelHistory::default(),
             coupled: false,
+            volume_views: 0,
         })
     }
 
@@ -159,73 +162,113 @@ impl ViewerSet {
         self.targets.clear();
         self.ids.clear();
         self.coupled = false;
+        // Slots: first every view that lights its own froxel volume, then the coupled
+        // stereo eyes that read their partner's (so that the froxel stages dispatch over
+        // the first `volume_views` slots only, and the composite's two passes over the
+        // two ranges, each with no idle workgroups).
+        struct Placed<'a> {
+            view: &'a super::TargetView,
+            frame_pixel: u64,
+            row_stride: u32,
+            /// (target, view) of the partner whose volume it reads.
+            partner: Option<(usize, usize)>,
+        }
+        let mut placed: Vec<Vec<Placed>> = Vec::with_capacity(targets.len());
         let mut first_pixel = 0u64;
-        for &(index, t) in targets {
+        for (k, &(index, t)) in targets.iter().enumerate() {
             let cameras: Vec<Camera> = t.views.iter().map(|v| v.camera).collect();
             let partners = stereo_pairs(&cameras, settings.stereo_share_m);
-            let first_slot = self.ids.len() as u32;
             self.targets.push(TargetSlice {
                 target: index,
                 first_pixel,
                 pixels: t.pixels(),
             });
-            for (v, partner) in t.views.iter().zip(partners) {
-                let slot = self.ids.len() as u32;
-                let volume_view = partner.map_or(slot, |p| first_slot + p as u32);
-                self.coupled |= partner.is_some();
-                let c = &v.camera;
-                let vp = c.projection(aspect, near, far) * c.view();
-                let right = c.forward.cross(c.up()).normalize();
-                let up = right.cross(c.forward);
-                let tan_y = (c.fov_y * 0.5).tan();
-                // A view reading its partner's volume keeps no froxels of its own.
-                let history = self.history.of(v.id).filter(|_| volume_view == slot);
-                self.gpu_views.push(ViewGpu {
-                    view_proj: vp.to_cols_array_2d(),
-                    prev_view_proj: history.map_or(vp, |h| h.view_proj).to_cols_array_2d(),
-                    position: c.position.to_array(),
-                    near,
-                    forward: c.forward.to_array(),
-                    far,
-                    right: right.to_array(),
-                    tan_x: tan_y * tan_x_scale,
-                    up: up.to_array(),
-                    tan_y,
-                    size: [layout.width, layout.height],
-                    froxel_dims: layout.froxel_dims,
-                    frustum_dims: layout.frustum_dims,
-                    froxel_px: settings.froxel_px,
-                    frustum_px: settings.frustum_px,
-                    froxel_base: slot * vol.froxels_per_view(),
-                    frustum_base: slot * vol.frustum_per_view(),
-                    pixel_base: (first_pixel
-                        + v.origin[1] as u64 * t.width as u64
-                        + v.origin[0] as u64) as u32,
-                    jitter: frame_jitter(settings, frame.frame_index),
-                    row_stride: t.width,
-                    history_base: history.map_or(NO_HISTORY, |h| h.froxel_base),
-                    volume_view,
-                    _pad: 0,
-                });
-                self.ids.push(v.id);
-            }
+            placed.push(
+                t.views
+                    .iter()
+                    .zip(partners)
+                    .map(|(v, p)| Placed {
+                        view: v,
+                        frame_pixel: first_pixel
+                            + v.origin[1] as u64 * t.width as u64
+                            + v.origin[0] as u64,
+                        row_stride: t.width,
+                        partner: p.map(|p| (k, p)),
+                    })
+                    .collect(),
+            );
             first_pixel += t.pixels();
         }
-        self.raster_views = RasterView::for_cameras(
-            &targets
-                .iter()
-                .flat_map(|(_, t)| t.views.iter().map(|v| v.camera))
-                .collect::<Vec<_>>(),
-            aspect,
-            near,
-            far,
-        );
+        let own: Vec<&Placed> = placed
+            .iter()
+            .flatten()
+            .filter(|p| p.partner.is_none())
+            .collect();
+        let coupled: Vec<&Placed> = placed
+            .iter()
+            .flatten()
+            .filter(|p| p.partner.is_some())
+            .collect();
+        self.volume_views = own.len() as u32;
+        self.coupled = !coupled.is_empty();
+        // Slot of each (target, view) that lights its own volume.
+        let slot_of = |at: (usize, usize)| -> u32 {
+            let view = &placed[at.0][at.1];
+            own.iter()
+                .position(|p| std::ptr::eq(*p, view))
+                .expect("a partner lights its own volume") as u32
+        };
+        let mut cameras = Vec::with_capacity(count);
+        for p in own.iter().chain(&coupled) {
+            let v = p.view;
+            let slot = self.ids.len() as u32;
+            let volume_view = p.partner.map_or(slot, slot_of);
+            let c = &v.camera;
+            let vp = c.projection(aspect, near, far) * c.view();
+            let right = c.forward.cross(c.up()).normalize();
+            let up = right.cross(c.forward);
+            let tan_y = (c.fov_y * 0.5).tan();
+            // A view reading its partner's volume keeps no froxels of its own.
+            let history = self.history.of(v.id).filter(|_| volume_view == slot);
+            self.gpu_views.push(ViewGpu {
+                view_proj: vp.to_cols_array_2d(),
+                prev_view_proj: history.map_or(vp, |h| h.view_proj).to_cols_array_2d(),
+                position: c.position.to_array(),
+                near,
+                forward: c.forward.to_array(),
+                far,
+                right: right.to_array(),
+                tan_x: tan_y * tan_x_scale,
+                up: up.to_array(),
+                tan_y,
+                size: [layout.width, layout.height],
+                froxel_dims: layout.froxel_dims,
+                frustum_dims: layout.frustum_dims,
+                froxel_px: settings.froxel_px,
+                frustum_px: settings.frustum_px,
+                froxel_base: slot * vol.froxels_per_view(),
+                frustum_base: slot * vol.frustum_per_view(),
+                pixel_base: p.frame_pixel as u32,
+                jitter: frame_jitter(settings, frame.frame_index),
+                row_stride: p.row_stride,
+                history_base: history.map_or(NO_HISTORY, |h| h.froxel_base),
+                volume_view,
+                _pad: 0,
+            });
+            self.ids.push(v.id);
+            cameras.push(*c);
+        }
+        self.raster_views = RasterView::for_cameras(&cameras, aspect, near, far);
+        let owners = self.volume_views;
+        self.vol.groups.columns[2] = owners;
+        self.vol.groups.frustum[2] = owners;
         if self.coupled {
             self.vol.ensure_surface(ctx)?;
         }
         let frame = FrameGpu {
             view_count: count as u32,
             flags: frame.flags | if self.coupled { FLAG_COUPLED } else { 0 },
+            volume_views: self.volume_views,
             ..frame
         };
         ctx.queue

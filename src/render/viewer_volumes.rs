@@ -128,9 +128,11 @@ pub fn viewer_memory_bytes(
 /// Dispatch sizes of the per-viewer stages, computed once per allocation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Workgroups {
-    /// One invocation per froxel column (8 × 8 per workgroup) × viewers.
+    /// One invocation per froxel column (8 × 8 per workgroup) × the views that light
+    /// their own volume (all but coupled stereo eyes; set every frame by
+    /// `ViewerSet::prepare`).
     pub columns: [u32; 3],
-    /// One invocation per shadow-frustum column × viewers.
+    /// One invocation per shadow-frustum column × the views that light their own volume.
     pub frustum: [u32; 3],
     /// One invocation per strip of 4 pixels (8·4 × 8 per workgroup) × viewers.
     pub pixels: [u32; 3],
