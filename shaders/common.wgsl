@@ -56,10 +56,6 @@ struct Frame {
     sh_cell: f32,
     sh_dims: vec3u,
     sh_probes: u32,
-    volume_views: u32, // coupled stereo: slots below light their own volumes, the rest read a partner's
-    _pad_frame0: u32,
-    _pad_frame1: u32,
-    _pad_frame2: u32,
 }
 
 // Frame.flags
@@ -76,7 +72,6 @@ const FLAG_LAYER: u32 = 1024u;   // media marked `in_layer` are read from the wo
 const FLAG_MAPS: u32 = 2048u;    // mode `maps`: froxels read the shared shadow maps (no grid, no rays)
 const FLAG_LAYER_FULL: u32 = 4096u; // layer nodes hold σs, σt, emission and g (else one density)
 const FLAG_SH_AMBIENT: u32 = 8192u; // ambient light from the shared SH grid (else the constant `ambient`)
-const FLAG_COUPLED: u32 = 16384u; // some view reads its partner's volume and surfaces (coupled stereo)
 
 struct View {
     view_proj: mat4x4f,
@@ -269,7 +264,6 @@ const C_BRICKS: u32 = 7u;        // sparse grid: bricks requested this frame (al
 const C_TRANSMITTANCE_NODES: u32 = 8u; // shared media transmittance nodes filled
 const C_LAYER_BRICKS: u32 = 9u;  // media layer: bricks asked for this frame (in the pool or not)
 const C_LAYER_NODES: u32 = 10u;  // media layer: nodes filled this frame
-const C_SURFACES_REUSED: u32 = 11u; // coupled stereo: pixels whose surface came from the partner
 
 // Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a
 // table over all bricks holds 0 (unused), slot + 1 (allocated in the pool) or

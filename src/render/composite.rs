@@ -8,8 +8,6 @@ use crate::gpu::{storage_entry, GpuContext};
 pub(crate) struct Composite {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
-    /// After `pipeline`: the coupled stereo eyes, which read their partners' surfaces.
-    coupled: wgpu::ComputePipeline,
     /// Bound as the smoke layers of a set without them (never read: no particles).
     no_smoke: wgpu::Texture,
 }
@@ -39,7 +37,6 @@ impl Composite {
                 texture_entry(3),
                 texture_entry(4),
                 texture_entry(5),
-                storage_entry(6, ReadWrite),
             ],
         );
         let module = super::stage_shader(
@@ -67,12 +64,6 @@ impl Composite {
         });
         Composite {
             pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),
-            coupled: ctx.compute_pipeline_entry(
-                "composite coupled",
-                &module,
-                &[scene_layout, &layout],
-                "coupled",
-            ),
             layout,
             no_smoke,
         }
@@ -124,27 +115,15 @@ impl Composite {
                 binding: 5,
                 resource: wgpu::BindingResource::TextureView(&smoke),
             },
-            wgpu::BindGroupEntry {
-                binding: 6,
-                resource: volumes.surface.as_entire_binding(),
-            },
         ];
         let bg = maps.stage_bind_group(ctx, "composite", &self.layout, entries);
-        // The views that shade their own surfaces, then (slots from `volume_views` on)
-        // the coupled eyes that read them.
-        let [x, y, n] = volumes.groups.pixels;
-        let own = set.volume_views;
-        for (pipeline, z) in [(&self.pipeline, own), (&self.coupled, n - own)] {
-            if z > 0 {
-                dispatch(
-                    enc,
-                    ts,
-                    Stage::Composite,
-                    pipeline,
-                    &[&set.bind_group, &bg],
-                    [x, y, z],
-                );
-            }
-        }
+        dispatch(
+            enc,
+            ts,
+            Stage::Composite,
+            &self.pipeline,
+            &[&set.bind_group, &bg],
+            volumes.groups.pixels,
+        );
     }
 }

@@ -18,11 +18,9 @@ pub(crate) const FLAG_MAPS: u32 = 2048;
 pub(crate) const FLAG_LAYER_FULL: u32 = 4096;
 /// Ambient light from the shared SH grid (ambient_grid.rs), not the constant `ambient`.
 pub(crate) const FLAG_SH_AMBIENT: u32 = 8192;
-/// Coupled stereo: some view of the set reads its partner's volume and surfaces.
-pub(crate) const FLAG_COUPLED: u32 = 16384;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
-pub(crate) const COUNTERS: usize = 12;
+pub(crate) const COUNTERS: usize = 11;
 pub(crate) const C_GRID_RAYS: usize = 0;
 pub(crate) const C_FRUSTUM_RAYS: usize = 1;
 pub(crate) const C_LIGHTING_RAYS: usize = 2;
@@ -34,7 +32,6 @@ pub(crate) const C_BRICKS: usize = 7;
 pub(crate) const C_TRANSMITTANCE_NODES: usize = 8;
 pub(crate) const C_LAYER_BRICKS: usize = 9;
 pub(crate) const C_LAYER_NODES: usize = 10;
-pub(crate) const C_SURFACES_REUSED: usize = 11;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -80,10 +77,6 @@ pub(crate) struct FrameGpu {
     pub sh_cell: f32,
     pub sh_dims: [u32; 3],
     pub sh_probes: u32,
-    /// Coupled stereo: slots `0..volume_views` light their own froxel volumes; the rest
-    /// are eyes that read their partner's (viewer_set.rs).
-    pub volume_views: u32,
-    pub _pad_frame: [u32; 3],
 }
 
 #[repr(C)]
@@ -234,7 +227,7 @@ impl From<&Medium> for MediumGpu {
     }
 }
 
-const _: () = assert!(std::mem::size_of::<FrameGpu>() == 240);
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 224);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);

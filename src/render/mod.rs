@@ -524,14 +524,7 @@ fn dispatches(
                 .values()
                 .filter_map(|s| s.vol.smoke.as_ref().map(|b| b.workgroups(particles)))
                 .collect(),
-            Stage::Composite => sets
-                .values()
-                .flat_map(|s| {
-                    let [x, y, n] = s.vol.groups.pixels;
-                    [[x, y, s.volume_views], [x, y, n - s.volume_views]]
-                })
-                .filter(|g| g[2] > 0)
-                .collect(),
+            Stage::Composite => per_set(|g| g.pixels).collect(),
         };
         out.extend(groups.into_iter().map(|g| (stage.name(), g)));
     }

@@ -112,10 +112,6 @@ pub struct FrameStats {
     /// World media layer: nodes evaluated this frame (729 per brick filled).
     #[serde(default)]
     pub layer_nodes_filled: u64,
-    /// Coupled stereo: pixels of the eyes that read their partner's volume whose surface
-    /// radiance came from the partner, not shaded again.
-    #[serde(default)]
-    pub stereo_surfaces_reused: u64,
     /// World media layer: bricks holding media after this frame (the pool grows for the
     /// next frame when the bricks seen did not fit).
     #[serde(default)]
@@ -230,7 +226,6 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         transmittance_nodes: c(C_TRANSMITTANCE_NODES),
         layer_bricks_filled: c(C_LAYER_NODES) / super::media_layer::BRICK_NODES,
         layer_nodes_filled: c(C_LAYER_NODES),
-        stereo_surfaces_reused: c(C_SURFACES_REUSED),
         layer_bricks_in_use,
         layer_pool_bricks: layer.map_or(0, |l| u64::from(l.plan().capacity)),
         layer_bytes_in_use: layer.map_or(0, |l| layer_bricks_in_use * l.plan().brick_bytes()),

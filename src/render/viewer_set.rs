@@ -6,7 +6,7 @@
 
 use super::froxel_lighting::FroxelHistory;
 use super::gbuffer::RasterView;
-use super::gpu_types::{FrameGpu, ViewGpu, FLAG_COUPLED, NO_HISTORY};
+use super::gpu_types::{FrameGpu, ViewGpu, NO_HISTORY};
 use super::scene_gpu::SceneGpu;
 use super::smoke_view::SmokeBuffers;
 use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
@@ -47,8 +47,6 @@ pub(crate) struct ViewerSet {
     ids: Vec<ViewerId>,
     /// Froxel lighting's temporal history of these viewers, keyed by id.
     pub(crate) history: FroxelHistory,
-    /// Whether some view reads its partner's volume this frame (coupled stereo).
-    pub(crate) coupled: bool,
     /// Views that light their own froxel volume this frame: slots `0..volume_views`.
     pub(crate) volume_views: u32,
 }
@@ -75,7 +73,6 @@ impl ViewerSet {
             targets: Vec::new(),
             ids: Vec::new(),
             history: FroxelHistory::default(),
-            coupled: false,
             volume_views: 0,
         })
     }
@@ -161,11 +158,12 @@ impl ViewerSet {
         self.raster_views.clear();
         self.targets.clear();
         self.ids.clear();
-        self.coupled = false;
         // Slots: first every view that lights its own froxel volume, then the coupled
-        // stereo eyes that read their partner's (so that the froxel stages dispatch over
-        // the first `volume_views` slots only, and the composite's two passes over the
-        // two ranges, each with no idle workgroups).
+        // stereo eyes that read their partner's, so that the froxel stages dispatch over
+        // the first `volume_views` slots only. (With the eyes' idle workgroups in the
+        // dispatch, lavapipe gave each of its threads a contiguous range of workgroups:
+        // one thread lit the whole volume while the other idled, and a stereo pair cost
+        // what two eyes cost.)
         struct Placed<'a> {
             view: &'a super::TargetView,
             frame_pixel: u64,
@@ -210,7 +208,6 @@ impl ViewerSet {
             .filter(|p| p.partner.is_some())
             .collect();
         self.volume_views = own.len() as u32;
-        self.coupled = !coupled.is_empty();
         // Slot of each (target, view) that lights its own volume.
         let slot_of = |at: (usize, usize)| -> u32 {
             let view = &placed[at.0][at.1];
@@ -262,13 +259,8 @@ impl ViewerSet {
         let owners = self.volume_views;
         self.vol.groups.columns[2] = owners;
         self.vol.groups.frustum[2] = owners;
-        if self.coupled {
-            self.vol.ensure_surface(ctx)?;
-        }
         let frame = FrameGpu {
             view_count: count as u32,
-            flags: frame.flags | if self.coupled { FLAG_COUPLED } else { 0 },
-            volume_views: self.volume_views,
             ..frame
         };
         ctx.queue

@@ -94,16 +94,10 @@ pub fn largest_binding(
 /// G-buffer bytes per pixel: position rgba32f, normal rgba16f, albedo rgba8, depth 32f.
 const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 8 + 4 + 4;
 
-/// Coupled stereo's surface radiance per pixel (rgba32f: the coincident eyes of eye
-/// distance 0 must read back exactly what was shaded), allocated once a set has a
-/// coupled pair ([`ViewerVolumes::ensure_surface`]).
-const SURFACE_BYTES_PER_PIXEL: u64 = 16;
-
 /// GPU memory of [`ViewerVolumes`] for `count` views of `width`×`height` under
 /// `settings` in a scene holding at most `smoke_particles` particles
 /// ([`particle_capacity`](super::scene_gpu::particle_capacity), 0 without emitters):
-/// every stacked buffer, the G-buffer, coupled stereo's surface radiance (counted
-/// whether or not the views pair up) and the smoke's proxy lists and layers (what the
+/// every stacked buffer, the G-buffer and the smoke's proxy lists and layers (what the
 /// server's admission budget adds up over all view sizes).
 pub fn viewer_memory_bytes(
     settings: &super::Settings,
@@ -122,7 +116,7 @@ pub fn viewer_memory_bytes(
     } else {
         0
     };
-    buffers + count as u64 * (pixels * (GBUFFER_BYTES_PER_PIXEL + SURFACE_BYTES_PER_PIXEL) + smoke)
+    buffers + count as u64 * (pixels * GBUFFER_BYTES_PER_PIXEL + smoke)
 }
 
 /// Dispatch sizes of the per-viewer stages, computed once per allocation.
@@ -165,9 +159,6 @@ pub struct ViewerVolumes {
     pub(crate) tile_depth: wgpu::Buffer,
     pub(crate) column_limit: wgpu::Buffer,
     pub(crate) output: wgpu::Buffer,
-    /// Coupled stereo: every view's surface radiance, read by the eyes that share their
-    /// partner's volume (shaders/composite.wgsl); a 16-byte stub until a pair forms.
-    pub(crate) surface: wgpu::Buffer,
     pub(crate) gbuf_position: wgpu::Texture,
     pub(crate) gbuf_normal: wgpu::Texture,
     pub(crate) gbuf_albedo: wgpu::Texture,
@@ -237,23 +228,12 @@ impl ViewerVolumes {
             tile_depth: tile_depth?,
             column_limit: column_limit?,
             output: output?,
-            surface: ctx.storage("stereo surface", 16, wgpu::BufferUsages::empty())?,
             gbuf_position: tex("gbuffer position", wgpu::TextureFormat::Rgba32Float),
             gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
             gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
             gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
             smoke: None,
         })
-    }
-
-    /// Allocates [`Self::surface`] for every view, once a coupled pair needs it.
-    pub(crate) fn ensure_surface(&mut self, ctx: &GpuContext) -> anyhow::Result<()> {
-        let pixels = self.count as u64 * (self.layout.width * self.layout.height) as u64;
-        let bytes = (pixels * SURFACE_BYTES_PER_PIXEL).max(16);
-        if self.surface.size() < bytes {
-            self.surface = ctx.storage("stereo surface", bytes, wgpu::BufferUsages::empty())?;
-        }
-        Ok(())
     }
 
     pub(crate) fn froxels_per_view(&self) -> u32 {
@@ -285,9 +265,6 @@ impl ViewerVolumes {
             ("gbuffer", pixels * GBUFFER_BYTES_PER_PIXEL),
             ("output", pixels * 4),
         ];
-        if self.surface.size() > 16 {
-            list.push(("stereo_surface", self.surface.size() / n));
-        }
         if let Some(s) = &self.smoke {
             list.push(("smoke", s.bytes_per_viewer(pixels)));
         }

@@ -306,9 +306,6 @@ impl World {
             sh_cell: ambient.map_or(1.0, |a| a.cell),
             sh_dims: ambient.map_or([1; 3], |a| a.dims.to_array()),
             sh_probes: ambient.map_or(0, |a| a.probes()),
-            // Per set (ViewerSet::prepare).
-            volume_views: 0,
-            _pad_frame: [0; 3],
         })
     }
 
