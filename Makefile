@@ -49,8 +49,8 @@ PAPER := --variant 'paper:demand=off,cache=off,shadow_map_px=0' --variant 'gated
 
 bench: deps-runtime
 	$(CARGO) build
-	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel_size_m=0.5' --variant 'fine:voxel_size_m=0.125' --variant 'layer:media_voxel_m=0.25' --overlap 10,25,50,75,100 --truth 1 $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel_size_m=0.5' --variant 'fine:voxel_size_m=0.125' --variant 'layer:media_voxel_m=0.25' --overlap 10,25,50,75,100 --stereo 1,2,4,8 --truth 1 $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) --stereo 1,2,4,8 $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene street --variant 'paper:demand=off,cache=off,shadow_map_px=0' $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene smokehall --modes shared --time 14 $(BENCH_ARGS)
 

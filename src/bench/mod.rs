@@ -285,6 +285,11 @@ pub struct BenchPoint {
     /// configuration on the same frame (issue 16's coupled-stereo bound).
     #[serde(default)]
     pub flip_vs_eyes_alone: Option<FlipSummary>,
+    /// Stereo points: this frame's GPU time / that of the first eye rendered alone as
+    /// one mono view, back to back on the same frame (paired, as
+    /// `frame_gpu_vs_reference`; issue 16 bounds it at one session).
+    #[serde(default)]
+    pub frame_gpu_vs_one_eye: Option<Spread>,
 }
 
 /// A finished benchmark: what ran, where, and every point.
@@ -351,6 +356,7 @@ struct Samples {
     froxels: Vec<u64>,
     flip: Vec<f64>,
     flip_alone: Vec<f64>,
+    vs_one_eye: Vec<f64>,
     vs_reference: Vec<f64>,
     last: Option<FrameOutput>,
 }
@@ -427,6 +433,8 @@ impl Samples {
             ),
             flip_vs_reference: FlipSummary::of(&self.flip),
             flip_vs_eyes_alone: FlipSummary::of(&self.flip_alone),
+            frame_gpu_vs_one_eye: (!self.vs_one_eye.is_empty())
+                .then(|| Spread::of(&self.vs_one_eye)),
         }
     }
 }
@@ -657,14 +665,24 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         .map_err(|e| anyhow::anyhow!("--out {}: cannot create it: {e}", cfg.out.display()))?;
     let ctx = Arc::new(GpuContext::new()?);
     let bvh = Bvh::build(&scene.mesh)?;
-    let mut renderers = cfg
-        .configs
-        .iter()
-        .map(|v| {
-            Renderer::with_bvh(ctx.clone(), scene.clone(), &bvh, v.settings)
-                .map_err(|e| e.context(format!("configuration '{}'", v.name)))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let renderers_for = |what: &str| {
+        cfg.configs
+            .iter()
+            .map(|v| {
+                Renderer::with_bvh(ctx.clone(), scene.clone(), &bvh, v.settings)
+                    .map_err(|e| e.context(format!("configuration '{}'{what}", v.name)))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()
+    };
+    let mut renderers = renderers_for("")?;
+    // The stereo scenario's baselines walk the path in renderers of their own, so that
+    // each world's caches hold what its own viewers saw (a renderer that had just drawn
+    // the stereo frame would find this frame's grid already traced).
+    let (mut alone_renderers, mut one_eye_renderers) = if cfg.stereo_sessions.is_empty() {
+        (Vec::new(), Vec::new())
+    } else {
+        (renderers_for(", eyes alone")?, renderers_for(", one eye")?)
+    };
     let reference = cfg.configs.iter().position(|v| v.name == "reference");
 
     let mut plan: Vec<(Scenario, usize)> =
@@ -688,8 +706,9 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
     let total: usize = plan
         .iter()
         .map(|(s, n)| {
-            let renders = if *s == stereo { 2 } else { 1 };
-            renders * n * frames_per_point * cfg.configs.len()
+            // Coupled, each eye alone, and the first eye alone once more.
+            let viewer_renders = if *s == stereo { 2 * n + 1 } else { *n };
+            viewer_renders * frames_per_point * cfg.configs.len()
         })
         .sum();
     let aspect = cfg.width as f32 / cfg.height as f32;
@@ -708,6 +727,7 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             }
             let mut outputs: Vec<Option<FrameOutput>> = cfg.configs.iter().map(|_| None).collect();
             let mut alone: Vec<Option<FrameOutput>> = cfg.configs.iter().map(|_| None).collect();
+            let mut one_eye = vec![0.0; cfg.configs.len()];
             for i in order {
                 progress(&Progress {
                     done,
@@ -736,15 +756,13 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
                 outputs[i] = Some(out);
                 done += n;
                 if scenario == stereo {
-                    let out = render_point(
-                        &mut renderers[i],
-                        eyes_alone,
-                        &cams,
-                        (cfg.width, cfg.height),
-                        t,
-                    )?;
+                    let size = (cfg.width, cfg.height);
+                    let out = render_point(&mut alone_renderers[i], eyes_alone, &cams, size, t)?;
                     alone[i] = Some(out);
-                    done += n;
+                    let one =
+                        render_point(&mut one_eye_renderers[i], eyes_alone, &cams[..1], size, t)?;
+                    one_eye[i] = frame_gpu_ms(&one);
+                    done += n + 1;
                 }
             }
             if k < cfg.warmup as usize {
@@ -756,12 +774,16 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
                     against_reference(r, &alone, &mut alone_samples)?;
                 }
             }
-            for ((s, o), (a, sa)) in samples
+            for (((s, o), (a, sa)), one) in samples
                 .iter_mut()
                 .zip(outputs)
                 .zip(alone.into_iter().zip(alone_samples.iter_mut()))
+                .zip(one_eye)
             {
                 let o = o.expect("rendered above");
+                if one > 0.0 {
+                    s.vs_one_eye.push(frame_gpu_ms(&o) / one);
+                }
                 if let Some(a) = a {
                     s.flip_alone.extend(flip_per_viewer(&a, &o)?);
                     sa.add(a);
