@@ -179,7 +179,14 @@ fn the_grid_runs_once_per_frame_for_any_number_of_viewers() {
     for viewers in [1, 4] {
         let mut r = Renderer::new(gpu(), yard.clone(), settings).unwrap();
         let cams = yard.camera.viewers(viewers, 0.0);
-        r.render(&cams, 24, 14, 0.0).unwrap();
+        // The first frame reports its 64 warm-up passes, each over every probe.
+        let first = r.render(&cams, 24, 14, 0.0).unwrap().stats;
+        let warmup: Vec<_> = first
+            .dispatches
+            .iter()
+            .filter(|(s, _)| s == "ambient_grid")
+            .collect();
+        assert_eq!(warmup.len(), 64, "{warmup:?}");
         let stats = r.render(&cams, 24, 14, 0.1).unwrap().stats;
         let of = |stage: &str| -> Vec<[u32; 3]> {
             stats

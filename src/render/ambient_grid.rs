@@ -71,13 +71,13 @@ pub(crate) fn plan(scene: &Scene, spacing_m: f32) -> Option<AmbientPlan> {
     // Probes at the cells' centres: none on the bounds' faces, where a floor or an outer
     // wall usually is.
     let dims_for = |cell: f32| (extent / cell).ceil().as_uvec3().max(UVec3::ONE);
+    let probes = |d: UVec3| u64::from(d.x) * u64::from(d.y) * u64::from(d.z);
     let mut cell = spacing_m;
-    while u64::from(dims_for(cell).x) * u64::from(dims_for(cell).y) * u64::from(dims_for(cell).z)
-        > u64::from(MAX_PROBES)
-    {
+    let mut dims = dims_for(cell);
+    while probes(dims) > u64::from(MAX_PROBES) {
         cell *= 1.1;
+        dims = dims_for(cell);
     }
-    let dims = dims_for(cell);
     // The lattice centred on the bounds.
     let span = (dims.as_vec3() - 1.0) * cell;
     Some(AmbientPlan {
@@ -133,6 +133,9 @@ pub(crate) struct AmbientGrid {
     /// The warm-up passes' parameters, then the per-frame pass's (rewritten each frame).
     passes: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     warm: bool,
+    /// Workgroups of each pass (a trace and a blend) the last frame recorded: 64 over
+    /// every probe on a warm-up frame, one over a `STRIDE`th of them after.
+    recorded: Vec<[u32; 3]>,
 }
 
 impl AmbientGrid {
@@ -166,6 +169,7 @@ impl AmbientGrid {
             blend: ctx.compute_pipeline_entry("ambient_grid blend", &module, &layouts, "blend"),
             passes,
             warm: false,
+            recorded: Vec::new(),
         }
     }
 
@@ -178,9 +182,14 @@ impl AmbientGrid {
         self.warm = false;
     }
 
-    /// Workgroups of a steady frame's passes (a `STRIDE`th of the probes).
-    pub(crate) fn workgroups(&self) -> [u32; 3] {
+    /// Workgroups of a steady frame's pass (a `STRIDE`th of the probes).
+    fn steady_workgroups(&self) -> [u32; 3] {
         [self.plan.probes().div_ceil(STRIDE).div_ceil(64), 1, 1]
+    }
+
+    /// Workgroups of each pass the last frame recorded (what stats report).
+    pub(crate) fn recorded(&self) -> &[[u32; 3]] {
+        &self.recorded
     }
 
     /// Records this frame's passes: the warm-up over every probe on the first frame,
@@ -197,10 +206,14 @@ impl AmbientGrid {
             let (buf, _) = &self.passes[WARMUP as usize];
             let p = PassGpu::steady(frame_index);
             ctx.queue.write_buffer(buf, 0, bytemuck::bytes_of(&p));
-            (WARMUP as usize..WARMUP as usize + 1, self.workgroups())
+            (
+                WARMUP as usize..WARMUP as usize + 1,
+                self.steady_workgroups(),
+            )
         } else {
             (0..WARMUP as usize, [self.plan.probes().div_ceil(64), 1, 1])
         };
+        self.recorded = vec![groups; range.len()];
         for (_, bg) in &self.passes[range] {
             dispatch(
                 enc,

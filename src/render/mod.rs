@@ -514,7 +514,11 @@ fn dispatches(
                 .collect(),
             Stage::MediaTransmittance => vec![world.transmittance.workgroups()],
             Stage::SmokeShadows => vec![world.smoke_shadows.workgroups()],
-            Stage::AmbientGrid => world.ambient.iter().map(|a| a.workgroups()).collect(),
+            Stage::AmbientGrid => world
+                .ambient
+                .iter()
+                .flat_map(|a| a.recorded().iter().copied())
+                .collect(),
             Stage::SharedGrid => world.grid.iter().map(|g| g.workgroups()).collect(),
             Stage::GridRequests | Stage::FroxelLighting | Stage::VolumeIntegration => {
                 per_set(|g| g.columns).collect()
