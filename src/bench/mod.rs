@@ -702,7 +702,6 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         plan.push((stereo, 2 * sessions));
     }
     let frames_per_point = (cfg.warmup + cfg.frames) as usize;
-    // A stereo point renders its eyes twice: coupled, and each alone.
     let total: usize = plan
         .iter()
         .map(|(s, n)| {
