@@ -95,8 +95,8 @@ struct View {
     jitter: f32,
     row_stride: u32,    // pixels per row of the frame this view's tile is written into
     history_base: u32,  // this viewer's froxels in last frame's volume; NO_HISTORY: none
-    volume_view: u32,   // the slot whose froxel volume this view reads (coupled stereo)
-    _pad0: u32,
+    volume_view: u32,   // the slot whose froxel volume this view reads beyond its own slices (coupled stereo)
+    light_slices: u32,  // slices it lights itself: all, a coupled eye's near field, or 0
 }
 
 const NO_HISTORY: u32 = 0xffffffffu;

@@ -127,7 +127,8 @@ fn blend_history(v: View, p: vec3f, out: vec4f) -> vec4f {
     let ndc = prev.xyz / prev.w;
     let px = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5) * vec2f(v.size) / f32(v.froxel_px);
     let s = depth_to_slice(v, prev.w);
-    if all(px >= vec2f(0.0)) && all(px < vec2f(v.froxel_dims)) && s >= 0.0 && s < f32(frame.slices) {
+    // A coupled eye's history holds its near field only (v.light_slices).
+    if all(px >= vec2f(0.0)) && all(px < vec2f(v.froxel_dims)) && s >= 0.0 && s < f32(v.light_slices) {
         let hi = v.history_base + u32(px.x) + v.froxel_dims.x * (u32(px.y) + v.froxel_dims.y * u32(s));
         let h = unpack_rgba16(history[hi]);
         if all(abs(h) < vec4f(6.0e4)) {
@@ -146,15 +147,15 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
     let view_index = gid.z;
     if view_index < frame.view_count {
         let v = views[view_index];
-        // A coupled stereo eye reads its partner's volume (v.volume_view).
-        if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y && v.volume_view == view_index {
+        // A coupled stereo eye lights its near field only, or nothing (v.light_slices).
+        if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y && v.light_slices > 0u {
             // Slices behind every surface this column shows never reach the image.
-            var last = frame.slices - 1u;
+            var last = v.light_slices - 1u;
             if (frame.flags & FLAG_CULL) != 0u {
-                last = column_limit[column_index(v, view_index, gid.x, gid.y)];
+                last = min(last, column_limit[column_index(v, view_index, gid.x, gid.y)]);
             }
             let dir = froxel_ray(v, gid.xy);
-            for (var slice = 0u; slice < frame.slices; slice++) {
+            for (var slice = 0u; slice < v.light_slices; slice++) {
                 let p = froxel_point(v, dir, slice);
                 var out = vec4f(0.0);
                 if slice <= last {

@@ -75,13 +75,13 @@ fn request_column(gid: vec3u) {
         return;
     }
     let v = views[gid.z];
-    // A coupled stereo eye lights no froxels (v.volume_view).
-    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.volume_view != gid.z {
+    // A coupled stereo eye lights its near field only, or nothing (v.light_slices).
+    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.light_slices == 0u {
         return;
     }
-    var last = frame.slices - 1u;
+    var last = v.light_slices - 1u;
     if (frame.flags & FLAG_CULL) != 0u {
-        last = column_limit[column_index(v, gid.z, gid.x, gid.y)];
+        last = min(last, column_limit[column_index(v, gid.z, gid.x, gid.y)]);
     }
     let trilinear = (frame.flags & FLAG_TRILINEAR) != 0u;
     var prev = vec3i(-2147483647);

@@ -10,10 +10,12 @@ fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
 }
 
 // Trilinear lookup: bilinear between froxel column centres, linear between slice
-// boundaries (boundary b holds integrated[b − 1]; boundary 0 is the eye).
+// boundaries (boundary b holds integrated[b − 1]; boundary 0 is the eye). Depths past
+// the last slice the view lit (v.light_slices: a coupled eye's near field) read that
+// boundary.
 fn sample_integrated(v: View, pix: vec2f, depth: f32) -> vec4f {
-    let w = clamp(depth_to_slice(v, depth), 0.0, f32(frame.slices));
-    let s0 = min(floor(w), f32(frame.slices) - 1.0);
+    let w = clamp(depth_to_slice(v, depth), 0.0, f32(v.light_slices));
+    let s0 = min(floor(w), f32(v.light_slices) - 1.0);
     let fs = w - s0;
     let c = pix / f32(v.froxel_px) - 0.5;
     let cmax = vec2f(v.froxel_dims) - 1.0;
@@ -35,17 +37,41 @@ fn sample_integrated(v: View, pix: vec2f, depth: f32) -> vec4f {
 
 // The fog between view `v`'s eye (slot `slot`) and the world point `p` its pixel `pix`
 // shows at `depth` along its forward axis. A coupled stereo eye (v.volume_view ≠ slot)
-// reads its partner's volume where `p` projects into it: the integral along the
-// partner's ray to `p`, which differs from its own by the eyes' parallax
-// (viewer_set.rs, `stereo_pairs`).
+// lit only its near field, the slices up to where the eyes' disparity falls under
+// `stereo_near_px` (maybe none), and reads its partner's volume beyond, where `p`
+// projects into it: the partner's integral along its own ray, which differs from this
+// eye's by their parallax (viewer_set.rs, `stereo_pairs`, `near_slices`). The eyes look
+// the same way, so the split is one depth for both.
 fn fog_to(v: View, slot: u32, pix: vec2f, depth: f32, p: vec3f) -> vec4f {
     if v.volume_view == slot {
         return sample_integrated(v, pix, depth);
+    }
+    let split = slice_depth(v, f32(v.light_slices));
+    var near = vec4f(0.0, 0.0, 0.0, 1.0);
+    if v.light_slices > 0u {
+        near = sample_integrated(v, pix, min(depth, split));
+        if depth <= split {
+            return near;
+        }
     }
     let o = views[v.volume_view];
     let d = p - o.position;
     let z = max(dot(d, o.forward), o.near);
     let ndc = vec2f(dot(d, o.right) / (z * o.tan_x), dot(d, o.up) / (z * o.tan_y));
     let opix = vec2f(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * vec2f(o.size);
-    return sample_integrated(o, opix, z);
+    let far = sample_integrated(o, opix, z);
+    if v.light_slices == 0u {
+        return far;
+    }
+    // The partner's fog from the split on: its integral to p less that to the split,
+    // seen through its transmittance at the split (un-composited), then put behind this
+    // eye's own near field. Where the partner's fog is all but opaque before the split
+    // (T < 1e-3) what lies beyond it is lost in the f16 differences; the floor keeps
+    // their amplification bounded.
+    let at_split = sample_integrated(o, opix, split);
+    let inv = near.a / max(at_split.a, 1e-3);
+    return vec4f(
+        near.rgb + inv * max(far.rgb - at_split.rgb, vec3f(0.0)),
+        min(inv * far.a, near.a),
+    );
 }

@@ -15,11 +15,11 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
     let view_index = gid.z;
     if view_index < frame.view_count {
         let v = views[view_index];
-        // A coupled stereo eye lights no froxels (v.volume_view).
-        if gid.x < v.frustum_dims.x && gid.y < v.frustum_dims.y && v.volume_view == view_index {
+        // A coupled stereo eye lights its near field only, or nothing (v.light_slices).
+        if gid.x < v.frustum_dims.x && gid.y < v.frustum_dims.y && v.light_slices > 0u {
             let pix = (vec2f(gid.xy) + 0.5) * f32(v.frustum_px);
             let dir = view_ray(v, min(pix, vec2f(v.size) - 0.5)); // past the edge: the last pixel centre
-            for (var slice = 0u; slice < frame.frustum_slices; slice++) {
+            for (var slice = 0u; slice < min(frame.frustum_slices, v.light_slices); slice++) {
                 let p = froxel_point(v, dir, slice);
                 var mask = 0u;
                 for (var li = 0u; li < frame.light_count; li++) {

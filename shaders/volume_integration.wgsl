@@ -15,8 +15,8 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
         return;
     }
     let v = views[view_index];
-    // A coupled stereo eye reads its partner's volume (v.volume_view).
-    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.volume_view != view_index {
+    // A coupled stereo eye integrates its near field only, or nothing (v.light_slices).
+    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.light_slices == 0u {
         return;
     }
     let pix = (vec2f(gid.xy) + 0.5) * f32(v.froxel_px);
@@ -25,7 +25,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
     var scattered = vec3f(0.0);
     var transmittance = 1.0;
     var z0 = v.near;
-    for (var s = 0u; s < frame.slices; s++) {
+    for (var s = 0u; s < v.light_slices; s++) {
         let index = v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * s);
         let z1 = slice_depth(v, f32(s + 1u));
         let d = (z1 - z0) * inv_cos;

@@ -1,9 +1,11 @@
 //! Coupled stereo (issue 16): a stereo session's two eyes light one froxel volume when
 //! they stand at most `stereo_share_m` apart. The left eye lights and integrates it; the
-//! right eye's composite reads it at its pixels' world points. Each eye must stay within
-//! mean FLIP 0.02 of rendering that eye alone, while the froxels lit per frame halve.
-//! Eye distance 0 shares fully (both eyes identical); a wide pair (1 m) falls back to
-//! two volumes and is exactly two eyes rendered alone; a 1×1 eye still renders.
+//! right eye lights only its near field (where the eyes' disparity exceeds
+//! `stereo_near_px`) and its composite reads the left eye's volume beyond, at its pixels'
+//! world points. Each eye must stay within mean FLIP 0.02 of rendering that eye alone,
+//! with far fewer froxels lit than two eyes light. Eye distance 0 shares fully (both eyes
+//! identical); a wide pair (1 m) falls back to two volumes and is exactly two eyes
+//! rendered alone; a 1×1 eye still renders.
 
 mod gpu_support;
 
@@ -88,7 +90,8 @@ fn coupled_eyes_light_one_volume_within_flip_0_02_of_each_eye_alone() {
         lit(&l),
         lit(&r)
     );
-    // The froxel stages ran over the left eye's slot only.
+    // The froxel stages ran over both eyes' slots: the left eye's volume and the right
+    // eye's near field.
     let z = |o: &FrameOutput, stage: &str| {
         o.stats
             .dispatches
@@ -96,7 +99,7 @@ fn coupled_eyes_light_one_volume_within_flip_0_02_of_each_eye_alone() {
             .find(|(n, _)| n == stage)
             .map(|(_, g)| g[2])
     };
-    assert_eq!(z(&c, "froxel_lighting"), Some(1));
+    assert_eq!(z(&c, "froxel_lighting"), Some(2));
     assert_eq!(z(&t, "froxel_lighting"), Some(2));
     assert_eq!(
         z(&c, "composite"),
@@ -110,14 +113,30 @@ fn coupled_eyes_light_one_volume_within_flip_0_02_of_each_eye_alone() {
     );
     assert_eq!(lit(&t), lit(&l) + lit(&r));
     // Coupled: one volume, lit for the left eye (plus what the right eye's tiles add to
-    // its culling), so about half the froxels.
+    // its culling), and the right eye's near field.
     assert!(lit(&c) >= lit(&l), "the shared volume covers the left eye");
     assert!(
-        (lit(&c) as f64) < 0.6 * lit(&t) as f64,
+        (lit(&c) as f64) < 0.75 * lit(&t) as f64,
         "coupled eyes lit {} froxels, two volumes {}",
         lit(&c),
         lit(&t)
     );
+    // Without the near field the right eye lights nothing: the froxel stages run over
+    // the left eye's slot alone and about half the froxels are lit.
+    let far_only = Settings {
+        stereo_near_px: 0.0,
+        ..settings
+    };
+    let (shared, f) = stereo(&scene, far_only, eye_m, (W, H));
+    assert_eq!(z(&f, "froxel_lighting"), Some(1));
+    assert!(
+        (lit(&f) as f64) < 0.6 * lit(&t) as f64 && lit(&f) < lit(&c),
+        "one volume lit {} froxels, with the near field {}, two volumes {}",
+        lit(&f),
+        lit(&c),
+        lit(&t)
+    );
+    assert!(shared[0] == left, "the left eye is its own either way");
     // The left eye reads its own volume: what it shows is what it shows alone.
     assert!(errors[0] < 1e-3, "left eye: FLIP {}", errors[0]);
     assert!(
@@ -158,26 +177,54 @@ fn a_one_metre_eye_distance_falls_back_to_two_volumes_exactly() {
     assert!(eyes[0] != eyes[1]);
 }
 
-/// The crossover behind `stereo_share_m`'s default: the right eye's error against
-/// rendering it alone when coupling is forced at growing eye distances.
+/// The crossover behind `stereo_share_m`'s and `stereo_near_px`'s defaults: the right
+/// eye's error against rendering it alone when coupling is forced at growing eye
+/// distances, without a near field (the error grows with the parallax) and with the
+/// default one (which deepens with the eye distance, and with it the froxels lit).
 #[test]
-fn the_coupled_eyes_error_grows_with_the_eye_distance() {
+fn the_coupled_eyes_error_grows_with_the_eye_distance_unless_the_near_field_is_lit() {
     let scene = colonnade();
     let forced = Settings {
         stereo_share_m: 10.0,
         ..Settings::default()
     };
+    let far_only = Settings {
+        stereo_near_px: 0.0,
+        ..forced
+    };
     let mut errors = Vec::new();
     for eye_m in [0.032f32, 0.064, 0.07, 0.1, 0.2, 0.5, 1.0] {
-        let (coupled, _) = stereo(&scene, forced, eye_m, (W, H));
         let [_, (right, _)] = alone(&scene, forced, eye_m, (W, H));
-        let e = flip(&right, &coupled[1], (W, H));
-        println!("eye distance {eye_m} m: right eye FLIP {e:.4} against alone");
-        errors.push((eye_m, e));
+        let mut row = (eye_m, [0.0; 2], [0; 2]);
+        for (k, s) in [far_only, forced].into_iter().enumerate() {
+            let (coupled, out) = stereo(&scene, s, eye_m, (W, H));
+            row.1[k] = flip(&right, &coupled[1], (W, H));
+            row.2[k] = out.stats.froxels_with_media;
+        }
+        println!(
+            "eye distance {eye_m} m: right eye FLIP against alone {:.4} without the near \
+             field, {:.4} with it; froxels lit {} / {}",
+            row.1[0], row.1[1], row.2[0], row.2[1]
+        );
+        errors.push(row);
     }
-    let at = |m: f32| errors.iter().find(|(d, _)| *d == m).unwrap().1;
-    assert!(at(Settings::default().stereo_share_m) <= 0.02);
-    assert!(at(1.0) > at(0.064), "a wider pair errs more: {errors:?}");
+    let at = |m: f32| errors.iter().find(|(d, ..)| *d == m).unwrap();
+    assert!(at(Settings::default().stereo_share_m).1[0] <= 0.02);
+    assert!(
+        at(1.0).1[0] > 2.0 * at(0.064).1[0],
+        "a wider pair errs more: {errors:?}"
+    );
+    // The near field never errs more, and takes most of a wide pair's error away (at
+    // 128 px across, a froxel's disparity lies 0.4 m from a 6.4 cm pair: the near
+    // field is shallow there, and what is left is the two eyes' froxels sampling the
+    // shafts at different points).
+    for (eye_m, e, lit) in &errors {
+        assert!(e[1] <= e[0] + 1e-3, "{eye_m} m: {e:?}");
+        assert!(lit[1] > lit[0], "{eye_m} m: the near field lights froxels");
+    }
+    assert!(at(Settings::default().stereo_share_m).1[1] <= 0.02);
+    assert!(at(1.0).1[1] < 0.5 * at(1.0).1[0], "{errors:?}");
+    assert!(at(1.0).2[1] > at(0.064).2[1], "the near field deepens");
 }
 
 #[test]

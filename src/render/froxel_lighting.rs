@@ -68,9 +68,9 @@ impl FroxelHistory {
             return;
         }
         std::mem::swap(&mut vol.froxels, &mut vol.froxel_history);
-        for (slot, (id, v)) in ids.iter().zip(views).enumerate() {
-            // A coupled stereo eye wrote no froxels (it read its partner's).
-            if v.volume_view != slot as u32 {
+        for (id, v) in ids.iter().zip(views) {
+            // A coupled stereo eye without a near field wrote no froxels.
+            if v.light_slices == 0 {
                 continue;
             }
             let h = ViewerHistory {

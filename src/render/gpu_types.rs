@@ -108,7 +108,10 @@ pub(crate) struct ViewGpu {
     /// The slot whose froxel volume this view reads: its own, or (coupled stereo) its
     /// partner's, which lit one volume for both (viewer_set.rs, `stereo_pairs`).
     pub volume_view: u32,
-    pub _pad: u32,
+    /// Slices this view lights in its own volume: every slice for a view of its own,
+    /// the near field for a coupled stereo eye (`stereo_near_px`), 0 for one that reads
+    /// its partner's volume only.
+    pub light_slices: u32,
 }
 
 /// `ViewGpu::history_base` of a viewer without last frame's froxels.

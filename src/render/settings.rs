@@ -251,11 +251,27 @@ settings! {
     /// "Coupled stereo").
     #[serde(default = "default_stereo_share_m")]
     stereo_share_m: f32 = default_stereo_share_m();
+
+    /// Coupled stereo's near field: the second eye lights its own froxels nearer than
+    /// the depth where the two eyes' disparity falls to this many pixels, and reads the
+    /// first eye's volume only beyond (0: it lights none and reads the whole volume).
+    ///
+    /// Near the eyes their rays are an eye distance apart and cross the light's edges at
+    /// different places; beyond the split they converge and differ by less than this.
+    /// The second eye's fog is its own near part composed with the first eye's volume
+    /// from the split depth on (shaders/integrated_lookup.wgsl, `fog_to`;
+    /// docs/decisions.md, "Coupled stereo").
+    #[serde(default = "default_stereo_near_px")]
+    stereo_near_px: f32 = default_stereo_near_px();
 }
 
 // What reports from before these settings existed read as (and their defaults).
 fn default_stereo_share_m() -> f32 {
     0.07
+}
+
+fn default_stereo_near_px() -> f32 {
+    8.0
 }
 
 fn default_transmittance_voxel_m() -> f32 {
@@ -606,6 +622,11 @@ impl Settings {
             self.stereo_share_m.is_finite() && (0.0..=10.0).contains(&self.stereo_share_m),
             "stereo_share_m={}: must be 0..=10 metres",
             self.stereo_share_m
+        );
+        anyhow::ensure!(
+            self.stereo_near_px.is_finite() && (0.0..=4096.0).contains(&self.stereo_near_px),
+            "stereo_near_px={}: must be 0 (no near field per eye) ..=4096 pixels",
+            self.stereo_near_px
         );
         anyhow::ensure!(
             self.mode != Mode::Maps || self.shadow_map_px > 0,

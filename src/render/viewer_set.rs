@@ -47,7 +47,8 @@ pub(crate) struct ViewerSet {
     ids: Vec<ViewerId>,
     /// Froxel lighting's temporal history of these viewers, keyed by id.
     pub(crate) history: FroxelHistory,
-    /// Views that light their own froxel volume this frame: slots `0..volume_views`.
+    /// Views that light froxels of their own this frame (whole volumes and coupled eyes'
+    /// near fields): slots `0..volume_views`.
     pub(crate) volume_views: u32,
 }
 
@@ -158,19 +159,23 @@ impl ViewerSet {
         self.raster_views.clear();
         self.targets.clear();
         self.ids.clear();
-        // Slots: first every view that lights its own froxel volume, then the coupled
-        // stereo eyes that read their partner's, so that the froxel stages dispatch over
-        // the first `volume_views` slots only. (With the eyes' idle workgroups in the
-        // dispatch, lavapipe gave each of its threads a contiguous range of workgroups:
-        // one thread lit the whole volume while the other idled, and a stereo pair cost
-        // what two eyes cost.)
+        // Slots: first every view that lights froxels of its own (whole volumes, and the
+        // near fields of coupled stereo eyes, in target order so that an eye's near field
+        // sits beside its partner), then the coupled eyes that only read their partner's,
+        // so that the froxel stages dispatch over the first `volume_views` slots only.
+        // (With the eyes' idle workgroups in the dispatch, lavapipe gave each of its
+        // threads a contiguous range of workgroups: one thread lit the whole volume while
+        // the other idled, and a stereo pair cost what two eyes cost.)
         struct Placed<'a> {
             view: &'a super::TargetView,
             frame_pixel: u64,
             row_stride: u32,
-            /// (target, view) of the partner whose volume it reads.
+            /// (target, view) of the partner whose volume it reads beyond its own slices.
             partner: Option<(usize, usize)>,
+            /// Slices it lights itself.
+            light_slices: u32,
         }
+        let focal_px = layout.width as f32 * 0.5;
         let mut placed: Vec<Vec<Placed>> = Vec::with_capacity(targets.len());
         let mut first_pixel = 0u64;
         for (k, &(index, t)) in targets.iter().enumerate() {
@@ -185,38 +190,48 @@ impl ViewerSet {
                 t.views
                     .iter()
                     .zip(partners)
-                    .map(|(v, p)| Placed {
-                        view: v,
-                        frame_pixel: first_pixel
-                            + v.origin[1] as u64 * t.width as u64
-                            + v.origin[0] as u64,
-                        row_stride: t.width,
-                        partner: p.map(|p| (k, p)),
+                    .map(|(v, p)| {
+                        let c = &v.camera;
+                        let tan_x = (c.fov_y * 0.5).tan() * tan_x_scale;
+                        let near_field = p.map(|i| {
+                            let eye_m = c.position.distance(cameras[i].position);
+                            near_slices(settings, focal_px / tan_x, eye_m, (near, far))
+                        });
+                        // A near field as deep as the volume is a volume of its own.
+                        let partner = p.filter(|_| near_field < Some(settings.slices));
+                        Placed {
+                            view: v,
+                            frame_pixel: first_pixel
+                                + v.origin[1] as u64 * t.width as u64
+                                + v.origin[0] as u64,
+                            row_stride: t.width,
+                            partner: partner.map(|p| (k, p)),
+                            light_slices: near_field
+                                .filter(|_| partner.is_some())
+                                .unwrap_or(settings.slices),
+                        }
                     })
                     .collect(),
             );
             first_pixel += t.pixels();
         }
-        let own: Vec<&Placed> = placed
+        let lighting: Vec<&Placed> = placed
             .iter()
             .flatten()
-            .filter(|p| p.partner.is_none())
+            .filter(|p| p.light_slices > 0)
             .collect();
-        let coupled: Vec<&Placed> = placed
-            .iter()
-            .flatten()
-            .filter(|p| p.partner.is_some())
-            .collect();
-        self.volume_views = own.len() as u32;
-        // Slot of each (target, view) that lights its own volume.
+        let readers = placed.iter().flatten().filter(|p| p.light_slices == 0);
+        self.volume_views = lighting.len() as u32;
+        // Slot of each (target, view) that lights a volume of its own.
         let slot_of = |at: (usize, usize)| -> u32 {
             let view = &placed[at.0][at.1];
-            own.iter()
+            lighting
+                .iter()
                 .position(|p| std::ptr::eq(*p, view))
                 .expect("a partner lights its own volume") as u32
         };
         let mut cameras = Vec::with_capacity(count);
-        for p in own.iter().chain(&coupled) {
+        for p in lighting.iter().copied().chain(readers) {
             let v = p.view;
             let slot = self.ids.len() as u32;
             let volume_view = p.partner.map_or(slot, slot_of);
@@ -225,8 +240,8 @@ impl ViewerSet {
             let right = c.forward.cross(c.up()).normalize();
             let up = right.cross(c.forward);
             let tan_y = (c.fov_y * 0.5).tan();
-            // A view reading its partner's volume keeps no froxels of its own.
-            let history = self.history.of(v.id).filter(|_| volume_view == slot);
+            // A view that lights no froxels keeps none.
+            let history = self.history.of(v.id).filter(|_| p.light_slices > 0);
             self.gpu_views.push(ViewGpu {
                 view_proj: vp.to_cols_array_2d(),
                 prev_view_proj: history.map_or(vp, |h| h.view_proj).to_cols_array_2d(),
@@ -250,7 +265,7 @@ impl ViewerSet {
                 row_stride: p.row_stride,
                 history_base: history.map_or(NO_HISTORY, |h| h.froxel_base),
                 volume_view,
-                _pad: 0,
+                light_slices: p.light_slices,
             });
             self.ids.push(v.id);
             cameras.push(*c);
@@ -305,6 +320,22 @@ pub(crate) fn stereo_pairs(cameras: &[Camera], share_m: f32) -> Vec<Option<usize
     partners
 }
 
+/// Coupled stereo's near field: the slices a second eye `eye_m` from its partner lights
+/// itself, those nearer than the depth where the eyes' disparity, `focal_px · eye_m / z`
+/// pixels, falls to `stereo_near_px` (rounded out to a slice boundary; 0 with
+/// `stereo_near_px` 0). The slices are the exponential ones of `slice_depth`
+/// (common.wgsl), between the view's `near` and `far`.
+pub(crate) fn near_slices(s: &Settings, focal_px: f32, eye_m: f32, (near, far): (f32, f32)) -> u32 {
+    if s.stereo_near_px <= 0.0 || eye_m <= 0.0 {
+        return 0;
+    }
+    let z = focal_px * eye_m / s.stereo_near_px;
+    let u = ((z - near) / (far - near)).clamp(0.0, 1.0);
+    let k = s.depth_curve;
+    let slice = s.slices as f32 * (u * k.exp_m1()).ln_1p() / k;
+    (slice.ceil() as u32).min(s.slices)
+}
+
 /// Per-frame jitter along the view ray (a 1-D low-discrepancy sequence, centred) with
 /// temporal reprojection on; 0 without.
 fn frame_jitter(s: &Settings, frame_index: u32) -> f32 {
@@ -312,5 +343,35 @@ fn frame_jitter(s: &Settings, frame_index: u32) -> f32 {
         ((frame_index as f32 * 0.618_034).fract() - 0.5) * 0.999
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_near_field_ends_where_the_disparity_falls_to_stereo_near_px() {
+        let s = Settings::default();
+        let (near, far) = (0.1, 40.0);
+        let focal_px = 128.5;
+        let n = near_slices(&s, focal_px, 0.064, (near, far));
+        // The split depth's disparity is at most the tolerance, the slice before's more.
+        let depth = |slice: u32| {
+            let k = s.depth_curve;
+            near + (far - near) * (k * slice as f32 / s.slices as f32).exp_m1() / k.exp_m1()
+        };
+        let disparity = |z: f32| focal_px * 0.064 / z;
+        assert!(n > 0 && n < s.slices, "{n} slices");
+        assert!(disparity(depth(n)) <= s.stereo_near_px + 1e-3);
+        assert!(disparity(depth(n - 1)) > s.stereo_near_px);
+        // None without the setting or the eye distance; all of them for a split past far.
+        let off = Settings {
+            stereo_near_px: 0.0,
+            ..s
+        };
+        assert_eq!(near_slices(&off, focal_px, 0.064, (near, far)), 0);
+        assert_eq!(near_slices(&s, focal_px, 0.0, (near, far)), 0);
+        assert_eq!(near_slices(&s, focal_px, 10.0, (near, far)), s.slices);
     }
 }

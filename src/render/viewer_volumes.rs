@@ -123,10 +123,10 @@ pub fn viewer_memory_bytes(
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Workgroups {
     /// One invocation per froxel column (8 × 8 per workgroup) × the views that light
-    /// their own volume (all but coupled stereo eyes; set every frame by
-    /// `ViewerSet::prepare`).
+    /// froxels of their own (all but coupled stereo eyes without a near field; set every
+    /// frame by `ViewerSet::prepare`).
     pub columns: [u32; 3],
-    /// One invocation per shadow-frustum column × the views that light their own volume.
+    /// One invocation per shadow-frustum column × the views that light froxels.
     pub frustum: [u32; 3],
     /// One invocation per strip of 4 pixels (8·4 × 8 per workgroup) × viewers.
     pub pixels: [u32; 3],
