@@ -31,7 +31,7 @@ pub use variant::{configurations, mode_variants, parse_variant, BenchVariant};
 use crate::gpu::GpuContext;
 use crate::metrics::compare;
 use crate::render::{
-    FrameOutput, FrameTarget, Mode, RayCounts, Renderer, Stage, TargetView, ViewerId,
+    stereo_eyes, FrameOutput, FrameTarget, Mode, RayCounts, Renderer, Stage, ViewerId,
 };
 use crate::scene::{Bvh, Camera, Scene};
 use crate::truth::{render_truth, TruthSettings};
@@ -132,10 +132,7 @@ impl Scenario {
                     .camera
                     .viewers(n / 2, time_s)
                     .into_iter()
-                    .flat_map(|head| {
-                        let t = FrameTarget::stereo(0, head, eye_distance_m, 1, 1);
-                        [t.views[0].camera, t.views[1].camera]
-                    })
+                    .flat_map(|head| stereo_eyes(head, eye_distance_m))
                     .collect()
             }
             Scenario::Overlap { overlap_pct } => {
@@ -465,21 +462,7 @@ fn render_point(
     let targets: Vec<FrameTarget> = cams
         .chunks(2)
         .enumerate()
-        .map(|(i, eyes)| FrameTarget {
-            width: 2 * width,
-            height,
-            view_width: width,
-            view_height: height,
-            views: eyes
-                .iter()
-                .enumerate()
-                .map(|(k, c)| TargetView {
-                    id: (2 * i + k) as ViewerId,
-                    camera: *c,
-                    origin: [k as u32 * width, 0],
-                })
-                .collect(),
-        })
+        .map(|(i, eyes)| FrameTarget::row(2 * i as ViewerId, eyes, width, height))
         .collect();
     let out = r.render_targets(&targets, time_s)?;
     let images = targets

@@ -45,7 +45,7 @@ pub use smoke_particles::cpu_particles;
 pub use smoke_shadows::{SmokeMapKind, SmokeShadowMap, MAX_CROSSINGS as SMOKE_MAX_CROSSINGS};
 pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
-pub use target::{FrameOutput, FrameTarget, TargetView, TargetsOutput};
+pub use target::{stereo_eyes, FrameOutput, FrameTarget, TargetView, TargetsOutput};
 pub use viewer_set::ViewerId;
 pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
 pub use world::{Lookup, World};

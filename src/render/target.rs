@@ -16,6 +16,16 @@ pub struct TargetView {
     pub origin: [u32; 2],
 }
 
+/// A stereo head's eyes, left and right: `head` moved ∓`eye_m`/2 along its right
+/// vector, looking parallel.
+pub fn stereo_eyes(head: Camera, eye_m: f32) -> [Camera; 2] {
+    let right = head.forward.cross(head.up()).normalize();
+    [-0.5 * eye_m, 0.5 * eye_m].map(|offset| Camera {
+        position: head.position + right * offset,
+        ..head
+    })
+}
+
 /// One image a frame produces (a session's frame): its viewers, all of one view size,
 /// tiled into it. The composite writes every tile in place; pixels no tile covers are
 /// opaque black.
@@ -49,26 +59,31 @@ impl FrameTarget {
         }
     }
 
-    /// A stereo session's frame: two `width`×`height` eyes side by side (as the server
-    /// tiles them), the left one (id `id`) and the right one (`id + 1`) `head` moved
-    /// ∓`eye_m`/2 along its right vector.
-    pub fn stereo(id: ViewerId, head: Camera, eye_m: f32, width: u32, height: u32) -> FrameTarget {
-        let right = head.forward.cross(head.up()).normalize();
-        let eye = |i: u32, offset: f32| TargetView {
-            id: id + i as ViewerId,
-            camera: Camera {
-                position: head.position + right * offset,
-                ..head
-            },
-            origin: [i * width, 0],
-        };
+    /// A frame of `cameras` side by side, `width`×`height` each, left to right, with ids
+    /// `first_id`, `first_id + 1`, …
+    pub fn row(first_id: ViewerId, cameras: &[Camera], width: u32, height: u32) -> FrameTarget {
         FrameTarget {
-            width: 2 * width,
+            width: cameras.len() as u32 * width,
             height,
             view_width: width,
             view_height: height,
-            views: vec![eye(0, -0.5 * eye_m), eye(1, 0.5 * eye_m)],
+            views: cameras
+                .iter()
+                .enumerate()
+                .map(|(i, c)| TargetView {
+                    id: first_id + i as ViewerId,
+                    camera: *c,
+                    origin: [i as u32 * width, 0],
+                })
+                .collect(),
         }
+    }
+
+    /// A stereo session's frame: two `width`×`height` eyes side by side (as the server
+    /// tiles them), the left one (id `id`) and the right one (`id + 1`), see
+    /// [`stereo_eyes`].
+    pub fn stereo(id: ViewerId, head: Camera, eye_m: f32, width: u32, height: u32) -> FrameTarget {
+        FrameTarget::row(id, &stereo_eyes(head, eye_m), width, height)
     }
 
     /// Viewer `i`'s tile of this target's RGBA8 `frame`, tightly packed.

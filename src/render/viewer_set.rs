@@ -215,26 +215,26 @@ impl ViewerSet {
             );
             first_pixel += t.pixels();
         }
-        let lighting: Vec<&Placed> = placed
-            .iter()
-            .flatten()
-            .filter(|p| p.light_slices > 0)
-            .collect();
-        let readers = placed.iter().flatten().filter(|p| p.light_slices == 0);
-        self.volume_views = lighting.len() as u32;
-        // Slot of each (target, view) that lights a volume of its own.
-        let slot_of = |at: (usize, usize)| -> u32 {
-            let view = &placed[at.0][at.1];
-            lighting
-                .iter()
-                .position(|p| std::ptr::eq(*p, view))
-                .expect("a partner lights its own volume") as u32
+        // (target, view) of every view in slot order, and each one's slot.
+        let at = |lights: bool| {
+            placed.iter().enumerate().flat_map(move |(k, views)| {
+                (0..views.len())
+                    .filter(move |&j| (views[j].light_slices > 0) == lights)
+                    .map(move |j| (k, j))
+            })
         };
+        let order: Vec<(usize, usize)> = at(true).chain(at(false)).collect();
+        let mut slot_of: Vec<Vec<u32>> = placed.iter().map(|v| vec![0; v.len()]).collect();
+        for (slot, &(k, j)) in order.iter().enumerate() {
+            slot_of[k][j] = slot as u32;
+        }
+        self.volume_views = at(true).count() as u32;
         let mut cameras = Vec::with_capacity(count);
-        for p in lighting.iter().copied().chain(readers) {
+        for &(k, j) in &order {
+            let p = &placed[k][j];
             let v = p.view;
-            let slot = self.ids.len() as u32;
-            let volume_view = p.partner.map_or(slot, slot_of);
+            let slot = slot_of[k][j];
+            let volume_view = p.partner.map_or(slot, |(pk, pj)| slot_of[pk][pj]);
             let c = &v.camera;
             let vp = c.projection(aspect, near, far) * c.view();
             let right = c.forward.cross(c.up()).normalize();
