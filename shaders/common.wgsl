@@ -95,7 +95,7 @@ struct View {
     jitter: f32,
     row_stride: u32,    // pixels per row of the frame this view's tile is written into
     history_base: u32,  // this viewer's froxels in last frame's volume; NO_HISTORY: none
-    volume_view: u32,   // the slot whose froxel volume this view reads beyond its own slices (coupled stereo)
+    volume_view: u32,   // the slot whose froxels this view integrates beyond its own slices (coupled stereo)
     light_slices: u32,  // slices it lights itself: all, a coupled eye's near field, or 0
 }
 
@@ -323,6 +323,50 @@ fn froxel_ray(v: View, xy: vec2u) -> vec3f {
 fn froxel_point(v: View, dir: vec3f, slice: u32) -> vec3f {
     let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
     return v.position + dir * (z / dot(dir, v.forward));
+}
+
+// Pixel-space point (y down) where world point p projects in view `v` (p at least
+// `near` in front of the eye).
+fn pixel_of(v: View, p: vec3f) -> vec2f {
+    let d = p - v.position;
+    let z = max(dot(d, v.forward), v.near);
+    let ndc = vec2f(dot(d, v.right) / (z * v.tan_x), dot(d, v.up) / (z * v.tan_y));
+    return vec2f(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * vec2f(v.size);
+}
+
+// The four froxel columns around pixel-space point `pix` of view `v` (clamped to the
+// view's columns) and the bilinear weights between their centres.
+struct Columns {
+    c0: vec2f,
+    c1: vec2f,
+    f: vec2f,
+}
+
+fn columns_at(v: View, pix: vec2f) -> Columns {
+    let c = pix / f32(v.froxel_px) - 0.5;
+    let cmax = vec2f(v.froxel_dims) - 1.0;
+    let c0 = clamp(floor(c), vec2f(0.0), cmax);
+    return Columns(c0, min(c0 + 1.0, cmax), clamp(c - c0, vec2f(0.0), vec2f(1.0)));
+}
+
+// Corner k (0..4: bit 0 picks x + 1, bit 1 y + 1) of `cols`, and its bilinear weight.
+fn column_corner(cols: Columns, k: u32) -> vec2u {
+    return vec2u(select(cols.c0, cols.c1, vec2<bool>((k & 1u) != 0u, (k & 2u) != 0u)));
+}
+
+fn column_weight(cols: Columns, k: u32) -> f32 {
+    let w = select(1.0 - cols.f, cols.f, vec2<bool>((k & 1u) != 0u, (k & 2u) != 0u));
+    return w.x * w.y;
+}
+
+// The slot and column of invocation `gid` of workgroup `wg` in a froxel-column stage's
+// dispatch over `n` workgroups: workgroup (x, y, z) works for slot (z + x) mod n.z, so
+// that every run of consecutive workgroups mixes the slots. Lavapipe hands each of its
+// threads one contiguous range of workgroups; with z alone naming the slot, a coupled
+// stereo eye's near field and its partner's whole volume went to different threads and
+// the partner's thread did all of its work alone. The map is one-to-one for every x.
+fn column_slot(gid: vec3u, wg: vec3u, n: vec3u) -> vec3u {
+    return vec3u(gid.xy, (wg.z + wg.x) % n.z);
 }
 
 // Index of froxel column (x, y) of viewer `view_index` in per-column buffers (culling's

@@ -14,7 +14,7 @@
 @group(1) @binding(5) var smoke: texture_2d_array<f32>;
 // Bindings 10–14: the shadow maps (shaders/shadow_lookup.wgsl).
 
-// fetch_integrated / sample_integrated / fog_to: shaders/integrated_lookup.wgsl.
+// fetch_integrated / sample_integrated: shaders/integrated_lookup.wgsl.
 
 fn aces(x: vec3f) -> vec3f {
     return clamp(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), vec3f(0.0), vec3f(1.0));
@@ -33,9 +33,7 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
     let dir = view_ray(v, pix);
     var color = frame.sky;
     var depth = v.far;
-    var point = v.position + dir * (v.far / dot(dir, v.forward));
     if pos.w > 0.0 {
-        point = pos.xyz;
         depth = pos.w;
         let p = pos.xyz;
         var n = textureLoad(gbuf_normal, texel, layer, 0).xyz;
@@ -72,7 +70,7 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
         color = albedo / PI * irradiance;
     }
     if (frame.flags & FLAG_MEDIA) != 0u {
-        let fog = fog_to(v, u32(layer), pix, depth, point);
+        let fog = sample_integrated(v, pix, depth);
         color = color * fog.w + fog.rgb;
     }
     // The smoke over what lies behind it: S + (1 − S.a)·base, S premultiplied.

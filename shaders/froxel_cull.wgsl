@@ -43,17 +43,18 @@ fn column_limit_pass(@builtin(global_invocation_id) gid: vec3u) {
         return;
     }
     var far = 0.0;
-    let lo = max(vec2i(gid.xy) - 1, vec2i(0));
-    let hi = min(vec2i(gid.xy) + 1, vec2i(v.froxel_dims) - 1);
-    // A volume that a coupled stereo eye reads too (its volume_view is this view)
-    // lights what either eye's tiles show. Their disparity, a few pixels at a normal eye
-    // distance beyond a metre, mostly stays inside the 3 × 3 tiles; a surface the
-    // partner alone sees farther away gets the fog up to the limit (viewer_set.rs,
-    // `stereo_pairs`).
+    // Froxels that a coupled stereo eye integrates too (its volume_view is this view)
+    // are lit for what either eye's tiles show. Beyond its near field the eyes' disparity
+    // is under a froxel (stereo_near_px), so the coupled eye's column reads this view's
+    // columns ±1 and needs the depth of its own 3 × 3 tiles: its tiles ±2 cover that
+    // (viewer_set.rs, `stereo_pairs`).
     for (var w = 0u; w < frame.view_count; w++) {
         if w != gid.z && views[w].volume_view != gid.z {
             continue;
         }
+        let reach = select(1, 2, w != gid.z);
+        let lo = max(vec2i(gid.xy) - reach, vec2i(0));
+        let hi = min(vec2i(gid.xy) + reach, vec2i(v.froxel_dims) - 1);
         for (var y = lo.y; y <= hi.y; y++) {
             for (var x = lo.x; x <= hi.x; x++) {
                 far = max(far, tile_depth[column_index(v, w, u32(x), u32(y))]);

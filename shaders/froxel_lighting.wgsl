@@ -141,9 +141,14 @@ fn blend_history(v: View, p: vec3f, out: vec4f) -> vec4f {
 // One invocation per froxel column (z runs over viewers), front to back: the view, its
 // ray and the column's cull limit are read once, not once per froxel.
 @compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u) {
+fn main(
+    @builtin(global_invocation_id) invocation: vec3u,
+    @builtin(workgroup_id) wg: vec3u,
+    @builtin(num_workgroups) n: vec3u,
+) {
     var rays = 0u;
     var lit = 0u;
+    let gid = column_slot(invocation, wg, n);
     let view_index = gid.z;
     if view_index < frame.view_count {
         let v = views[view_index];

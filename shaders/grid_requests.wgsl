@@ -107,21 +107,33 @@ fn request_column(gid: vec3u) {
 }
 
 @compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u) {
+fn main(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(workgroup_id) wg: vec3u,
+    @builtin(num_workgroups) n: vec3u,
+) {
     phase = PHASE_DENSE;
-    request_column(gid);
+    request_column(column_slot(gid, wg, n));
 }
 
 @compute @workgroup_size(8, 8, 1)
-fn mark_bricks(@builtin(global_invocation_id) gid: vec3u) {
+fn mark_bricks(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(workgroup_id) wg: vec3u,
+    @builtin(num_workgroups) n: vec3u,
+) {
     phase = PHASE_BRICKS;
-    request_column(gid);
+    request_column(column_slot(gid, wg, n));
 }
 
 @compute @workgroup_size(8, 8, 1)
-fn mark_voxels(@builtin(global_invocation_id) gid: vec3u) {
+fn mark_voxels(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(workgroup_id) wg: vec3u,
+    @builtin(num_workgroups) n: vec3u,
+) {
     phase = PHASE_VOXELS;
-    request_column(gid);
+    request_column(column_slot(gid, wg, n));
 }
 
 // One invocation per brick (2D dispatch: x + y·64·workgroups_x): a flagged brick takes

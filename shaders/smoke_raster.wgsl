@@ -141,7 +141,7 @@ fn fs_main(i: VsOut) -> @location(0) vec4f {
     var fog = vec4f(0.0, 0.0, 0.0, 1.0);
     if (frame.flags & FLAG_MEDIA) != 0u {
         let t = clamp(b, t0, t1);
-        fog = fog_to(v, sv.slot, pix, t * cos_f, v.position + dir * t);
+        fog = sample_integrated(v, pix, t * cos_f);
     }
     let out = vec4f(a * fog.rgb + fog.w * c, a);
     return select(vec4f(0.0), out, all(out == out) && all(abs(out) <= vec4f(6.0e4)));

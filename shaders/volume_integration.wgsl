@@ -8,29 +8,90 @@
 @group(1) @binding(0) var<storage, read> froxels: array<vec2u>;
 @group(1) @binding(1) var<storage, read_write> integrated: array<vec2u>;
 
+// Pixel coordinate, along one axis of `size` pixels, of froxel column `i`'s ray
+// (`froxel_ray`: the column's centre, the last pixel's centre past the view's edge).
+fn column_pixel(i: f32, froxel_px: f32, size: f32) -> f32 {
+    return min((i + 0.5) * froxel_px, size - 0.5);
+}
+
+// The two columns along one axis whose rays bracket pixel coordinate `pix`, and the
+// weight of the second; within 10⁻³ of a column's ray it is that column alone.
+fn bracket(pix: f32, froxel_px: f32, size: f32, count: f32) -> vec3f {
+    let c0 = clamp(floor(pix / froxel_px - 0.5), 0.0, count - 1.0);
+    let c1 = min(c0 + 1.0, count - 1.0);
+    let a = column_pixel(c0, froxel_px, size);
+    let b = column_pixel(c1, froxel_px, size);
+    var f = select(0.0, clamp((pix - a) / (b - a), 0.0, 1.0), b > a);
+    f = select(f, 0.0, f < 1e-3);
+    f = select(f, 1.0, f > 1.0 - 1e-3);
+    return vec3f(c0, c1, f);
+}
+
+// Froxel (src rgb, σt) of slice `s` at world point `p` from view `o`'s froxels: a
+// coupled stereo eye's far slice, read from its partner (the eyes look the same way with
+// the same slices, so both froxels lie on one depth plane), bilinear between the four
+// columns whose rays bracket where `p` projects. S = src·σt and σt are interpolated, not
+// src, so a froxel half in a medium takes half of its in-scattering. On a column's ray
+// (zero disparity) it is that froxel, exactly.
+fn partner_froxel(o: View, p: vec3f, s: u32) -> vec4f {
+    let pix = pixel_of(o, p);
+    let fp = f32(o.froxel_px);
+    let bx = bracket(pix.x, fp, f32(o.size.x), f32(o.froxel_dims.x));
+    let by = bracket(pix.y, fp, f32(o.size.y), f32(o.froxel_dims.y));
+    let cols = Columns(vec2f(bx.x, by.x), vec2f(bx.y, by.y), vec2f(bx.z, by.z));
+    let slice = o.froxel_base + o.froxel_dims.x * o.froxel_dims.y * s;
+    if all(fract(cols.f) == vec2f(0.0)) {
+        let c = column_corner(cols, select(0u, 1u, cols.f.x > 0.5) | select(0u, 2u, cols.f.y > 0.5));
+        return unpack_rgba16(froxels[slice + c.x + o.froxel_dims.x * c.y]);
+    }
+    var scattering = vec3f(0.0);
+    var sigma_t = 0.0;
+    for (var k = 0u; k < 4u; k++) {
+        let c = column_corner(cols, k);
+        let f = unpack_rgba16(froxels[slice + c.x + o.froxel_dims.x * c.y]);
+        let w = column_weight(cols, k);
+        scattering += w * f.rgb * max(f.w, SIGMA_EPS);
+        sigma_t += w * f.w;
+    }
+    return vec4f(scattering / max(sigma_t, SIGMA_EPS), sigma_t);
+}
+
+// Every view integrates its own columns: its own froxels for the slices it lit
+// (v.light_slices: all of them but for a coupled stereo eye) and, beyond, its partner's
+// (v.volume_view) where its froxels' points project, so that both eyes' fog is
+// integrated along their own rays while the far froxels are lit once.
 @compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u) {
+fn main(
+    @builtin(global_invocation_id) invocation: vec3u,
+    @builtin(workgroup_id) wg: vec3u,
+    @builtin(num_workgroups) n: vec3u,
+) {
+    let gid = column_slot(invocation, wg, n);
     let view_index = gid.z;
     if view_index >= frame.view_count {
         return;
     }
     let v = views[view_index];
-    // A coupled stereo eye integrates its near field only, or nothing (v.light_slices).
-    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.light_slices == 0u {
+    if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y {
         return;
     }
-    let pix = (vec2f(gid.xy) + 0.5) * f32(v.froxel_px);
-    let dir = view_ray(v, min(pix, vec2f(v.size) - 0.5)); // past the edge: the last pixel centre
+    let o = views[v.volume_view];
+    let dir = froxel_ray(v, gid.xy);
     let inv_cos = 1.0 / dot(dir, v.forward);
     var scattered = vec3f(0.0);
     var transmittance = 1.0;
     var z0 = v.near;
-    for (var s = 0u; s < v.light_slices; s++) {
+    for (var s = 0u; s < frame.slices; s++) {
         let index = v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * s);
         let z1 = slice_depth(v, f32(s + 1u));
         let d = (z1 - z0) * inv_cos;
         z0 = z1;
-        let f = unpack_rgba16(froxels[index]);
+        var f: vec4f;
+        if s < v.light_slices {
+            f = unpack_rgba16(froxels[index]);
+        } else {
+            f = partner_froxel(o, froxel_point(v, dir, s), s);
+        }
         let sigma_t = f.w;
         let tau = sigma_t * d;
         // 1 − exp(−τ) without cancellation for small τ.

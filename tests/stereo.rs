@@ -15,8 +15,8 @@ use fogcast::scene::{Camera, Scene};
 use gpu_support::{colonnade, gpu};
 use std::sync::Arc;
 
-const W: u32 = 128;
-const H: u32 = 72;
+const W: u32 = 160;
+const H: u32 = 90;
 const TIME: f32 = 0.5;
 
 /// The head: the colonnade's first path camera.
@@ -209,21 +209,24 @@ fn the_coupled_eyes_error_grows_with_the_eye_distance_unless_the_near_field_is_l
         errors.push(row);
     }
     let at = |m: f32| errors.iter().find(|(d, ..)| *d == m).unwrap();
-    assert!(at(Settings::default().stereo_share_m).1[0] <= 0.02);
+    // The protocol's default eye distance shares within the bound. (At these 160 px a
+    // froxel is a 20th of the view; the bench's 320×180 eyes, which issue 16 bounds,
+    // keep the worst eye of every head under 0.02 at 6.4 cm: docs/performance.md.)
+    let typical = fogcast::protocol::DEFAULT_EYE_DISTANCE_M as f32;
+    assert!(at(typical).1[1] <= 0.02, "{errors:?}");
     assert!(
-        at(1.0).1[0] > 2.0 * at(0.064).1[0],
+        at(1.0).1[0] > 2.0 * at(typical).1[0],
         "a wider pair errs more: {errors:?}"
     );
     // The near field never errs more, and takes most of a wide pair's error away (at
-    // 128 px across, a froxel's disparity lies 0.4 m from a 6.4 cm pair: the near
-    // field is shallow there, and what is left is the two eyes' froxels sampling the
-    // shafts at different points).
+    // 160 px across, a froxel's disparity lies 0.5 m from a 6.4 cm pair: the near field
+    // is shallow there, and what is left is the right eye's froxels interpolated
+    // between the left eye's).
     for (eye_m, e, lit) in &errors {
         assert!(e[1] <= e[0] + 1e-3, "{eye_m} m: {e:?}");
         assert!(lit[1] > lit[0], "{eye_m} m: the near field lights froxels");
     }
-    assert!(at(Settings::default().stereo_share_m).1[1] <= 0.02);
-    assert!(at(1.0).1[1] < 0.5 * at(1.0).1[0], "{errors:?}");
+    assert!(at(1.0).1[1] < 0.25 * at(1.0).1[0], "{errors:?}");
     assert!(at(1.0).2[1] > at(0.064).2[1], "the near field deepens");
 }
 

@@ -520,9 +520,8 @@ fn dispatches(
                 .flat_map(|a| a.recorded().iter().copied())
                 .collect(),
             Stage::SharedGrid => world.grid.iter().map(|g| g.workgroups()).collect(),
-            Stage::GridRequests | Stage::FroxelLighting | Stage::VolumeIntegration => {
-                per_set(|g| g.columns).collect()
-            }
+            Stage::GridRequests | Stage::FroxelLighting => per_set(|g| g.columns).collect(),
+            Stage::VolumeIntegration => per_set(|g| g.integration).collect(),
             Stage::ShadowFrustum => per_set(|g| g.frustum).collect(),
             Stage::SmokeProxies => sets
                 .values()

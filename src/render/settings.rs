@@ -245,22 +245,22 @@ settings! {
     /// that nearly coincide) with the same orientation and field of view, whose eyes lie
     /// at most this far apart, light one froxel volume, metres (0: only coincident views).
     ///
-    /// The first view lights and integrates it; the other's composite reads it at its
-    /// pixels' world points, projected into the first view (src/render/viewer_set.rs,
-    /// `stereo_pairs`). Wider pairs light their own volumes (docs/decisions.md,
-    /// "Coupled stereo").
+    /// The first view lights it; the other lights only its near field
+    /// (`stereo_near_px`) and integrates the first view's froxels beyond, where its own
+    /// froxels' points project (src/render/viewer_set.rs, `stereo_pairs`;
+    /// shaders/volume_integration.wgsl). Wider pairs light their own volumes
+    /// (docs/decisions.md, "Coupled stereo").
     #[serde(default = "default_stereo_share_m")]
     stereo_share_m: f32 = default_stereo_share_m();
 
     /// Coupled stereo's near field: the second eye lights its own froxels nearer than
-    /// the depth where the two eyes' disparity falls to this many pixels, and reads the
-    /// first eye's volume only beyond (0: it lights none and reads the whole volume).
+    /// the depth where the two eyes' disparity falls to this many pixels, and takes the
+    /// first eye's froxels only beyond (0: it lights none).
     ///
-    /// Near the eyes their rays are an eye distance apart and cross the light's edges at
-    /// different places; beyond the split they converge and differ by less than this.
-    /// The second eye's fog is its own near part composed with the first eye's volume
-    /// from the split depth on (shaders/integrated_lookup.wgsl, `fog_to`;
-    /// docs/decisions.md, "Coupled stereo").
+    /// Near the eyes their rays are an eye distance apart, up to several froxels, and
+    /// cross the light's edges at different places; beyond the split the first eye's
+    /// froxels lie less than this from the second eye's and are interpolated between
+    /// (docs/decisions.md, "Coupled stereo").
     #[serde(default = "default_stereo_near_px")]
     stereo_near_px: f32 = default_stereo_near_px();
 }
@@ -271,7 +271,7 @@ fn default_stereo_share_m() -> f32 {
 }
 
 fn default_stereo_near_px() -> f32 {
-    8.0
+    6.0
 }
 
 fn default_transmittance_voxel_m() -> f32 {

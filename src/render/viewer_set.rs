@@ -297,14 +297,15 @@ impl ViewerSet {
     }
 }
 
-/// Coupled stereo: for each of one frame's `cameras`, the earlier camera whose froxel
-/// volume it reads (`None`: it lights its own). A camera shares with the first earlier
-/// one that lights its own volume, looks the same way with the same field of view and
-/// stands at most `share_m` from it: a stereo session's eyes at a normal eye distance,
-/// or split views that nearly coincide. Its composite then reads that volume at its
-/// pixels' world points (`fog_to` in shaders/integrated_lookup.wgsl); the error is the
-/// two eyes' parallax inside the volume, which docs/decisions.md ("Coupled stereo")
-/// measures against the eye rendered alone.
+/// Coupled stereo: for each of one frame's `cameras`, the earlier camera whose froxels
+/// it shares (`None`: it lights its own). A camera shares with the first earlier one that
+/// lights its own volume, looks the same way with the same field of view and stands at
+/// most `share_m` from it: a stereo session's eyes at a normal eye distance, or split
+/// views that nearly coincide. It then lights only its near field ([`near_slices`]) and
+/// its integration reads that volume's froxels beyond, where its own froxels' points
+/// project (shaders/volume_integration.wgsl); the error is the interpolation between the
+/// partner's froxels, which docs/decisions.md ("Coupled stereo") measures against the
+/// eye rendered alone.
 pub(crate) fn stereo_pairs(cameras: &[Camera], share_m: f32) -> Vec<Option<usize>> {
     let mut partners: Vec<Option<usize>> = Vec::with_capacity(cameras.len());
     for (j, c) in cameras.iter().enumerate() {

@@ -126,6 +126,9 @@ pub(crate) struct Workgroups {
     /// froxels of their own (all but coupled stereo eyes without a near field; set every
     /// frame by `ViewerSet::prepare`).
     pub columns: [u32; 3],
+    /// One invocation per froxel column × every view (each integrates its own volume:
+    /// a coupled stereo eye reads its partner's froxels beyond its near field).
+    pub integration: [u32; 3],
     /// One invocation per shadow-frustum column × the views that light froxels.
     pub frustum: [u32; 3],
     /// One invocation per strip of 4 pixels (8·4 × 8 per workgroup) × viewers.
@@ -214,6 +217,7 @@ impl ViewerVolumes {
             output_pixels,
             groups: Workgroups {
                 columns: per_8(layout.froxel_dims),
+                integration: per_8(layout.froxel_dims),
                 frustum: per_8(layout.frustum_dims),
                 pixels: [
                     layout.width.div_ceil(8 * STRIP),

@@ -44,7 +44,7 @@ impl VolumeIntegration {
             Stage::VolumeIntegration,
             &self.pipeline,
             &[&set.bind_group, &bg],
-            v.groups.columns,
+            v.groups.integration,
         );
     }
 }
