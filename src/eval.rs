@@ -39,6 +39,8 @@ pub struct EvalConfig {
     /// Multiple scattering in `truth` (issue 16): path-trace up to this many
     /// scatterings, the sky as a light and no ambient (0: single scattering).
     pub truth_bounces: u32,
+    /// Variable step amplification in `truth`'s media march (seed 003 Eq. 4–6).
+    pub truth_vsa: bool,
     /// Node spacings of the media transmittance volumes to compare besides `shared`'s
     /// default, metres (0: marched per sample).
     pub transmittance_voxels_m: Vec<f32>,
@@ -190,7 +192,12 @@ fn variant_name(s: &Settings, base: &Settings) -> String {
 
 /// Runs the whole evaluation and writes `eval.md`, `eval.csv`, `eval.json` and plots.
 pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<Vec<EvalRow>> {
-    let ts = TruthSettings::from_flags(cfg.truth_steps, cfg.truth_spp, cfg.truth_bounces);
+    let ts = TruthSettings::from_flags(
+        cfg.truth_steps,
+        cfg.truth_spp,
+        cfg.truth_bounces,
+        cfg.truth_vsa,
+    );
     ts.validate()?;
     std::fs::create_dir_all(&cfg.out)?;
     let scene = Arc::new(Scene::load(&cfg.scene)?);
@@ -416,14 +423,7 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
         });
     }
     crate::output::write_png(&cfg.out.join("truth_00.png"), &truth[0], w, h)?;
-    write_report(
-        &cfg,
-        &scene,
-        &base,
-        &rows,
-        truth_ms,
-        truth_counts.media_rays + truth_counts.surface_rays,
-    )?;
+    write_report(&cfg, &scene, &base, &rows, truth_ms, truth_counts)?;
     Ok(rows)
 }
 
@@ -433,8 +433,10 @@ fn write_report(
     base: &Settings,
     rows: &[EvalRow],
     truth_ms: f64,
-    truth_rays: u64,
+    truth_counts: crate::truth::TruthCounts,
 ) -> anyhow::Result<()> {
+    let truth_rays = truth_counts.media_rays + truth_counts.surface_rays;
+    let truth_samples = truth_counts.media_samples;
     let mut t = Table::new(&[
         "variant",
         "grid",
@@ -470,7 +472,7 @@ fn write_report(
     crate::output::write_json(&cfg.out.join("eval.json"), &rows)?;
     let md = format!(
         "# eval: {scene}\n\n`{cmd}`\n\n{n} viewer(s) at {w}×{h}, evaluated frame at t = {t:.2} s after {f} walk-in frame(s); \
-         truth: {kind}, {truth_rays} shadow rays, {truth_s:.1} s on the CPU. Times are GPU timestamps \
+         truth: {kind}, {truth_rays} shadow rays, {truth_samples} media samples, {truth_s:.1} s on the CPU. Times are GPU timestamps \
          (median over the walk-in frames after the first) on `{adapter}`.\n\n\
          A variant is its mode and its settings that differ from the paper's method as published \
          (`{paper}` over `shared`'s defaults, {voxel} m voxels), as config files and bench \
@@ -491,8 +493,14 @@ fn write_report(
             )
         } else {
             format!(
-                "{} steps and {} ray(s)/pixel",
-                cfg.truth_steps, cfg.truth_spp
+                "{} {} and {} ray(s)/pixel",
+                cfg.truth_steps,
+                if cfg.truth_vsa {
+                    "baseline steps with step amplification (seed 003)"
+                } else {
+                    "steps"
+                },
+                cfg.truth_spp
             )
         },
         truth_s = truth_ms / 1e3,

@@ -70,6 +70,13 @@ struct EvalArgs {
     /// ambient (0: single scattering).
     #[arg(long, default_value_t = TruthSettings::default().bounces)]
     truth_bounces: u32,
+    /// Variable step amplification in the truth renderer's media march (seed 003 Eq.
+    /// 4–6): `--truth-steps` becomes the baseline, and segments lengthen (never shorten)
+    /// where the density is smooth, the view already dim or the ray far. Fewer samples
+    /// for the same steps; per sample more accurate on some scenes, less on others
+    /// (docs/decisions.md). Off by default.
+    #[arg(long)]
+    truth_vsa: bool,
     /// Node spacings of the shared media transmittance volumes to compare besides the
     /// default, metres (0: every froxel and pixel marches its shadow ray).
     #[arg(long, value_delimiter = ',', default_value = "0,0.25,1")]
@@ -117,6 +124,13 @@ struct SettingsArgs {
     /// (0: single scattering).
     #[arg(long, default_value_t = TruthSettings::default().bounces)]
     truth_bounces: u32,
+    /// Mode `truth` with variable step amplification (seed 003 Eq. 4–6): `--truth-steps`
+    /// is the baseline segment count and segments lengthen (never shorten) where the
+    /// density is smooth, the view already dim or the ray far. Fewer samples for the same
+    /// steps; per sample more accurate on some scenes, less on others (stats.json counts
+    /// the media samples; docs/decisions.md). Off by default.
+    #[arg(long)]
+    truth_vsa: bool,
     #[command(flatten)]
     given: SettingsOverrides,
 }
@@ -291,6 +305,7 @@ fn render_truth_frames(a: &RenderArgs, scene: &Scene) -> anyhow::Result<()> {
         a.settings.truth_steps,
         a.settings.truth_spp,
         a.settings.truth_bounces,
+        a.settings.truth_vsa,
     );
     settings.validate()?;
     let (images, counts) = render_truth(
@@ -345,6 +360,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         truth_steps: a.truth_steps,
         truth_spp: a.truth_spp,
         truth_bounces: a.truth_bounces,
+        truth_vsa: a.truth_vsa,
         transmittance_voxels_m: a.transmittance_voxels,
         time_s: a.time,
         depth_curves: a.depth_curves,
