@@ -1118,16 +1118,10 @@ impl PixelContext<'_> {
             let Some((extinction, s)) = self.media_source(p, dir, &mut rays) else {
                 continue;
             };
-            let tau = extinction * d;
-            let (s_int, t_step) = if tau < 1e-6 {
-                (s * d, 1.0 - tau)
-            } else {
-                let t_step = (-tau).exp();
-                (s * ((1.0 - t_step) / extinction), t_step)
-            };
+            let (s_int, t_step) = segment(extinction, s, d);
             scattered += transmittance * s_int;
             transmittance *= t_step;
-            if transmittance < 1e-7 {
+            if transmittance < T_CUTOFF as f32 {
                 break;
             }
         }
@@ -1192,13 +1186,7 @@ impl PixelContext<'_> {
             let Some((extinction, s)) = sample else {
                 continue;
             };
-            let tau = extinction * d;
-            let (s_int, t_step) = if tau < 1e-6 {
-                (s * d, 1.0 - tau)
-            } else {
-                let t_step = (-tau).exp();
-                (s * ((1.0 - t_step) / extinction), t_step)
-            };
+            let (s_int, t_step) = segment(extinction, s, d);
             scattered += transmittance * s_int;
             transmittance *= t_step;
             if transmittance < T_CUTOFF as f32 {
@@ -1206,6 +1194,19 @@ impl PixelContext<'_> {
             }
         }
         (scattered, transmittance, rays, samples)
+    }
+}
+
+/// One segment of a primary ray's march, `d` metres through a medium of extinction
+/// `extinction` and source `s` (σs·L_in + emission): the radiance it scatters towards the
+/// eye, `S·(1 − exp(−σt·d))/σt` (`S·d` as σt·d → 0), and its transmittance.
+fn segment(extinction: f32, s: Vec3, d: f32) -> (Vec3, f32) {
+    let tau = extinction * d;
+    if tau < 1e-6 {
+        (s * d, 1.0 - tau)
+    } else {
+        let t_step = (-tau).exp();
+        (s * ((1.0 - t_step) / extinction), t_step)
     }
 }
 
