@@ -334,22 +334,15 @@ fn pixel_of(v: View, p: vec3f) -> vec2f {
     return vec2f(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * vec2f(v.size);
 }
 
-// The four froxel columns around pixel-space point `pix` of view `v` (clamped to the
-// view's columns) and the bilinear weights between their centres.
+// Four froxel columns, c0 and c1 along each axis (corner k: bit 0 picks x from c1, bit 1
+// y), and the weight f of c1 along each axis: a bilinear read between their rays.
 struct Columns {
     c0: vec2f,
     c1: vec2f,
     f: vec2f,
 }
 
-fn columns_at(v: View, pix: vec2f) -> Columns {
-    let c = pix / f32(v.froxel_px) - 0.5;
-    let cmax = vec2f(v.froxel_dims) - 1.0;
-    let c0 = clamp(floor(c), vec2f(0.0), cmax);
-    return Columns(c0, min(c0 + 1.0, cmax), clamp(c - c0, vec2f(0.0), vec2f(1.0)));
-}
-
-// Corner k (0..4: bit 0 picks x + 1, bit 1 y + 1) of `cols`, and its bilinear weight.
+// Corner k (0..4) of `cols`, and its bilinear weight.
 fn column_corner(cols: Columns, k: u32) -> vec2u {
     return vec2u(select(cols.c0, cols.c1, vec2<bool>((k & 1u) != 0u, (k & 2u) != 0u)));
 }

@@ -9,9 +9,17 @@ fn fetch_integrated(v: View, x: u32, y: u32, s: i32) -> vec4f {
     return unpack_rgba16(integrated[i]);
 }
 
+// The four froxel columns around pixel-space point `pix` of view `v` (clamped to the
+// view's columns) and the bilinear weights between their centres.
+fn columns_at(v: View, pix: vec2f) -> Columns {
+    let c = pix / f32(v.froxel_px) - 0.5;
+    let cmax = vec2f(v.froxel_dims) - 1.0;
+    let c0 = clamp(floor(c), vec2f(0.0), cmax);
+    return Columns(c0, min(c0 + 1.0, cmax), clamp(c - c0, vec2f(0.0), vec2f(1.0)));
+}
+
 // Trilinear lookup of view `v`'s integrated volume at pixel `pix` and view depth
-// `depth`: bilinear between the four columns' centres around the pixel (`columns_at`,
-// common.wgsl), linear between slice boundaries (boundary b holds integrated[b − 1];
+// `depth`: bilinear between the four columns' centres around the pixel, linear between slice boundaries (boundary b holds integrated[b − 1];
 // boundary 0 is the eye). Every view reads its own volume: a coupled stereo eye
 // integrated its partner's froxels beyond its near field (volume_integration.wgsl).
 fn sample_integrated(v: View, pix: vec2f, depth: f32) -> vec4f {
