@@ -6,29 +6,14 @@
 mod gpu_support;
 
 use fogcast::gpu::GpuContext;
-use fogcast::render::{FrameTarget, Renderer, Settings, TargetView, ViewerId};
+use fogcast::render::{FrameTarget, Renderer, Settings, ViewerId};
 use fogcast::scene::Camera;
 use gpu_support::{colonnade, gpu};
 use std::sync::Arc;
 
 /// A session's frame of `cols × rows` tiles of `view` pixels, one camera per tile.
 fn session(first_id: ViewerId, cams: &[Camera], view: (u32, u32), cols: u32) -> FrameTarget {
-    let rows = (cams.len() as u32).div_ceil(cols);
-    FrameTarget {
-        width: view.0 * cols,
-        height: view.1 * rows,
-        view_width: view.0,
-        view_height: view.1,
-        views: cams
-            .iter()
-            .enumerate()
-            .map(|(i, c)| TargetView {
-                id: first_id + i as ViewerId,
-                camera: *c,
-                origin: [(i as u32 % cols) * view.0, (i as u32 / cols) * view.1],
-            })
-            .collect(),
-    }
+    FrameTarget::tiled(first_id, cams, view, cols)
 }
 
 fn popcount(words: &[u32]) -> u32 {

@@ -462,7 +462,7 @@ fn render_point(
     let targets: Vec<FrameTarget> = cams
         .chunks(2)
         .enumerate()
-        .map(|(i, eyes)| FrameTarget::row(2 * i as ViewerId, eyes, width, height))
+        .map(|(i, eyes)| FrameTarget::tiled(2 * i as ViewerId, eyes, (width, height), 2))
         .collect();
     let out = r.render_targets(&targets, time_s)?;
     let images = targets

@@ -59,12 +59,18 @@ impl FrameTarget {
         }
     }
 
-    /// A frame of `cameras` side by side, `width`×`height` each, left to right, with ids
-    /// `first_id`, `first_id + 1`, …
-    pub fn row(first_id: ViewerId, cameras: &[Camera], width: u32, height: u32) -> FrameTarget {
+    /// A frame of `cameras` in tiles of `width`×`height`, `cols` to a row, row-major,
+    /// with ids `first_id`, `first_id + 1`, …
+    pub fn tiled(
+        first_id: ViewerId,
+        cameras: &[Camera],
+        (width, height): (u32, u32),
+        cols: u32,
+    ) -> FrameTarget {
+        let rows = (cameras.len() as u32).div_ceil(cols);
         FrameTarget {
-            width: cameras.len() as u32 * width,
-            height,
+            width: cols * width,
+            height: rows * height,
             view_width: width,
             view_height: height,
             views: cameras
@@ -73,7 +79,7 @@ impl FrameTarget {
                 .map(|(i, c)| TargetView {
                     id: first_id + i as ViewerId,
                     camera: *c,
-                    origin: [i as u32 * width, 0],
+                    origin: [(i as u32 % cols) * width, (i as u32 / cols) * height],
                 })
                 .collect(),
         }
@@ -83,7 +89,7 @@ impl FrameTarget {
     /// tiles them), the left one (id `id`) and the right one (`id + 1`), see
     /// [`stereo_eyes`].
     pub fn stereo(id: ViewerId, head: Camera, eye_m: f32, width: u32, height: u32) -> FrameTarget {
-        FrameTarget::row(id, &stereo_eyes(head, eye_m), width, height)
+        FrameTarget::tiled(id, &stereo_eyes(head, eye_m), (width, height), 2)
     }
 
     /// Viewer `i`'s tile of this target's RGBA8 `frame`, tightly packed.
