@@ -90,6 +90,7 @@ fn mean_error(errors: &[FrameError]) -> FrameError {
         flip_mean: avg(&|e| sel(e).flip_mean),
         psnr_db: avg(&|e| sel(e).psnr_db.min(99.0)),
         rmse: avg(&|e| sel(e).rmse),
+        ssim: avg(&|e| sel(e).ssim),
     };
     FrameError {
         frame: img(|e| &e.frame),
@@ -446,6 +447,7 @@ fn write_report(
         "memory MiB",
         "FLIP vs truth",
         "PSNR vs truth dB",
+        "SSIM vs truth",
         "fog FLIP vs truth",
         "FLIP vs reference",
     ]);
@@ -463,6 +465,7 @@ fn write_report(
             format!("{:.1}", r.memory_bytes as f64 / 1048576.0),
             format!("{:.4}", r.vs_truth.frame.flip_mean),
             format!("{:.1}", r.vs_truth.frame.psnr_db),
+            format!("{:.4}", r.vs_truth.frame.ssim),
             format!("{:.4}", r.vs_truth.fog.flip_mean),
             r.vs_reference
                 .map_or("–".into(), |e| format!("{:.4}", e.frame.flip_mean)),
