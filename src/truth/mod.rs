@@ -965,11 +965,7 @@ impl PixelContext<'_> {
                     next = next.min(edge(k + 1));
                     if segment.is_none_or(|(j, _, _)| j != k) {
                         let (a, b) = (edge(k), edge(k + 1));
-                        let u = if seed == 0 {
-                            0.5
-                        } else {
-                            f64::from(unit_float(hash(seed ^ hash(k.wrapping_mul(0x9e37_79b9)))))
-                        };
+                        let u = f64::from(segment_jitter(seed, k));
                         let p = (st.o + st.dir * (a + u * (b - a))).as_vec3();
                         samples += 1;
                         let (ext, src) = self
@@ -1107,21 +1103,14 @@ impl PixelContext<'_> {
         for k in 0..n {
             let b = t0 + (t1 - t0) * ((k + 1) as f32 / n as f32);
             let d = b - a;
-            let u = if seed == 0 {
-                0.5
-            } else {
-                unit_float(hash(seed ^ hash(k.wrapping_mul(0x9e37_79b9))))
-            };
+            let u = segment_jitter(seed, k);
             let p = o + dir * (a + u * d);
             a = b;
             samples += 1;
             let Some((extinction, s)) = self.media_source(p, dir, &mut rays) else {
                 continue;
             };
-            let (s_int, t_step) = segment(extinction, s, d);
-            scattered += transmittance * s_int;
-            transmittance *= t_step;
-            if transmittance < T_CUTOFF as f32 {
+            if !add_segment(&mut scattered, &mut transmittance, extinction, s, d) {
                 break;
             }
         }
@@ -1156,11 +1145,7 @@ impl PixelContext<'_> {
                 b = t1;
             }
             let d = b - a;
-            let u = if seed == 0 {
-                0.5
-            } else {
-                f64::from(unit_float(hash(seed ^ hash(k.wrapping_mul(0x9e37_79b9)))))
-            };
+            let u = f64::from(segment_jitter(seed, k));
             let at = a + u * d;
             let p = o + dir * at as f32;
             let d = d as f32;
@@ -1186,10 +1171,7 @@ impl PixelContext<'_> {
             let Some((extinction, s)) = sample else {
                 continue;
             };
-            let (s_int, t_step) = segment(extinction, s, d);
-            scattered += transmittance * s_int;
-            transmittance *= t_step;
-            if transmittance < T_CUTOFF as f32 {
+            if !add_segment(&mut scattered, &mut transmittance, extinction, s, d) {
                 break;
             }
         }
@@ -1197,17 +1179,38 @@ impl PixelContext<'_> {
     }
 }
 
-/// One segment of a primary ray's march, `d` metres through a medium of extinction
-/// `extinction` and source `s` (σs·L_in + emission): the radiance it scatters towards the
-/// eye, `S·(1 − exp(−σt·d))/σt` (`S·d` as σt·d → 0), and its transmittance.
-fn segment(extinction: f32, s: Vec3, d: f32) -> (Vec3, f32) {
+/// Where within segment `k` of a primary ray's march its one sample lies, as a fraction:
+/// the midpoint with seed 0, else hash-jittered.
+fn segment_jitter(seed: u32, k: u32) -> f32 {
+    if seed == 0 {
+        0.5
+    } else {
+        unit_float(hash(seed ^ hash(k.wrapping_mul(0x9e37_79b9))))
+    }
+}
+
+/// Adds one segment of a primary ray's march, `d` metres through a medium of extinction
+/// `extinction` and source `s` (σs·L_in + emission), to the ray's in-scattered radiance
+/// and transmittance: it scatters `S·(1 − exp(−σt·d))/σt` towards the eye (`S·d` as
+/// σt·d → 0), seen through the transmittance so far. Whether the ray goes on (its
+/// transmittance is still above the cut-off).
+fn add_segment(
+    scattered: &mut Vec3,
+    transmittance: &mut f32,
+    extinction: f32,
+    s: Vec3,
+    d: f32,
+) -> bool {
     let tau = extinction * d;
-    if tau < 1e-6 {
+    let (s_int, t_step) = if tau < 1e-6 {
         (s * d, 1.0 - tau)
     } else {
         let t_step = (-tau).exp();
         (s * ((1.0 - t_step) / extinction), t_step)
-    }
+    };
+    *scattered += *transmittance * s_int;
+    *transmittance *= t_step;
+    *transmittance >= T_CUTOFF as f32
 }
 
 /// The running state of [`PixelContext::march_smoke`].
