@@ -72,6 +72,7 @@ const FLAG_LAYER: u32 = 1024u;   // media marked `in_layer` are read from the wo
 const FLAG_MAPS: u32 = 2048u;    // mode `maps`: froxels read the shared shadow maps (no grid, no rays)
 const FLAG_LAYER_FULL: u32 = 4096u; // layer nodes hold σs, σt, emission and g (else one density)
 const FLAG_SH_AMBIENT: u32 = 8192u; // ambient light from the shared SH grid (else the constant `ambient`)
+const FLAG_FROXEL_MAPS: u32 = 16384u; // shared: froxels read the maps of the lights that have one
 
 struct View {
     view_proj: mat4x4f,

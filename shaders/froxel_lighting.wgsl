@@ -88,17 +88,42 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 vis[li] = select(0.0, 1.0, light_visible(l, p));
             }
         }
-    } else if slice < frame.frustum_slices {
-        let fx = min(xy.x * v.froxel_px / v.frustum_px, v.frustum_dims.x - 1u);
-        let fy = min(xy.y * v.froxel_px / v.frustum_px, v.frustum_dims.y - 1u);
-        let mask = frustum[v.frustum_base + fx + v.frustum_dims.x * (fy + v.frustum_dims.y * slice)];
-        for (var li = 0u; li < 8u; li++) {
-            vis[li] = f32((mask >> li) & 1u);
-        }
     } else {
-        let gv = grid_visibility(p);
-        vis = gv.vis;
-        trace = gv.missing;
+        // shared: the lights with a map read it where FLAG_FROXEL_MAPS asks, the others
+        // the shadow frustum (near slices) or the grid.
+        var mapped = 0u;
+        if (frame.flags & FLAG_FROXEL_MAPS) != 0u {
+            for (var li = 0u; li < frame.light_count; li++) {
+                if has_map(li) {
+                    mapped |= 1u << li;
+                    let l = lights[li];
+                    vis[li] = 0.0;
+                    if any(light_radiance(l, p) != vec3f(0.0)) {
+                        vis[li] = map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
+                    }
+                }
+            }
+        }
+        if mapped != (1u << frame.light_count) - 1u {
+            var other: array<f32, 8>;
+            if slice < frame.frustum_slices {
+                let fx = min(xy.x * v.froxel_px / v.frustum_px, v.frustum_dims.x - 1u);
+                let fy = min(xy.y * v.froxel_px / v.frustum_px, v.frustum_dims.y - 1u);
+                let mask = frustum[v.frustum_base + fx + v.frustum_dims.x * (fy + v.frustum_dims.y * slice)];
+                for (var li = 0u; li < 8u; li++) {
+                    other[li] = f32((mask >> li) & 1u);
+                }
+            } else {
+                let gv = grid_visibility(p);
+                other = gv.vis;
+                trace = gv.missing;
+            }
+            for (var li = 0u; li < 8u; li++) {
+                if ((mapped >> li) & 1u) == 0u {
+                    vis[li] = other[li];
+                }
+            }
+        }
     }
     if trace {
         for (var li = 0u; li < frame.light_count; li++) {

@@ -295,6 +295,14 @@ pub fn run(cfg: EvalConfig, progress: &(dyn Fn(&str) + Sync)) -> anyhow::Result<
         shadow_map_px: maps,
         ..base
     });
+    // `shared` with its froxels lit from those maps (`froxel_maps`: no grid, no frustum,
+    // hidden froxels culled), from `shared`'s defaults.
+    variants.push(Settings {
+        mode: Mode::Shared,
+        froxel_maps: true,
+        voxel_size_m: base.voxel_size_m,
+        ..Settings::default()
+    });
     // The media transmittance toward the lights at other node spacings, or marched per
     // froxel and pixel (0), on top of `shared`'s defaults.
     for &transmittance_voxel_m in &cfg.transmittance_voxels_m {

@@ -109,3 +109,43 @@ fn maps_mode_needs_shadow_maps() {
     let e = Renderer::new(gpu(), scene, s).err().expect("rejected");
     assert!(e.to_string().contains("shadow_map_px=0"), "{e}");
 }
+
+/// `shared` with `froxel_maps` on street (every light has a map): its froxels read the
+/// maps as `maps` does, so it allocates no grid, runs no grid or frustum pass and traces
+/// no ray, culls the hidden froxels `maps` lights, and shows the same picture (the
+/// hidden froxels never reach the image).
+#[test]
+fn froxel_maps_light_shared_froxels_without_a_grid() {
+    let scene = street();
+    let cams = scene.camera.viewers(2, 0.0);
+    let (w, h) = SIZE;
+    let mut maps = Renderer::new(gpu(), scene.clone(), settings(&scene, Mode::Maps)).unwrap();
+    let hybrid = Settings {
+        froxel_maps: true,
+        ..settings(&scene, Mode::Shared)
+    };
+    let mut shared = Renderer::new(gpu(), scene.clone(), hybrid).unwrap();
+    for t in [0.0, 1.0 / 30.0] {
+        let a = maps.render(&cams, w, h, t).unwrap();
+        let b = shared.render(&cams, w, h, t).unwrap();
+        assert_eq!(b.stats.rays.total, 0, "{:?}", b.stats.rays);
+        assert!(shared.shared_grid().is_none());
+        assert_eq!(b.stats.grid_dims, [0, 0, 0]);
+        let stages: Vec<&str> = b.stats.dispatches.iter().map(|(s, _)| s.as_str()).collect();
+        assert!(stages.contains(&"grid_requests"), "the culling runs: {stages:?}");
+        for stage in ["shared_grid", "shadow_frustum"] {
+            assert!(!stages.contains(&stage), "{stage} ran: {stages:?}");
+        }
+        assert!(
+            b.stats.froxels_with_media < a.stats.froxels_with_media,
+            "hidden froxels culled: {} vs maps' {}",
+            b.stats.froxels_with_media,
+            a.stats.froxels_with_media
+        );
+        for (i, (ra, rb)) in a.images.iter().zip(&b.images).enumerate() {
+            let e = compare(ra, rb, w, h).unwrap();
+            println!("t {t:.3} viewer {i}: froxel_maps vs maps FLIP {:.5}", e.flip_mean);
+            assert!(e.flip_mean <= 0.002, "viewer {i}: FLIP {}", e.flip_mean);
+        }
+    }
+}

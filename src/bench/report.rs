@@ -231,16 +231,50 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
         }
     }
     // Issue 14: `shared` against `reference` at its tighter bound, the cost of each
-    // viewer beyond the first against one `reference` viewer, and against `maps`.
+    // viewer beyond the first against one `reference` viewer, and against `maps`; the
+    // same for every `froxel_maps` variant of it (shared froxels lit from the maps).
+    let truth_of = |c: &str| {
+        r.truth
+            .as_ref()
+            .and_then(|t| t.flip.iter().find(|(n, _)| n == c).map(|(_, f)| *f))
+    };
+    let contenders = r
+        .configs
+        .iter()
+        .filter(|v| v.name == "shared" || (v.settings.froxel_maps && v.name != "reference"))
+        .map(|v| v.name.as_str());
+    for c in contenders {
+        out.extend(issue_14_checks(r, c, lo, hi, reference_hi));
+        if let (Some(s), Some(m)) = (truth_of(c), truth_of("maps")) {
+            out.push(Check {
+                what: format!("{c}: FLIP vs truth − maps' FLIP vs truth (the one truth image)"),
+                value: s - m,
+                bound: Some(0.0),
+            });
+        }
+    }
+    out
+}
+
+/// Issue 14's cost checks of configuration `c`: its frame at `hi` viewers against
+/// `reference`'s and `maps`', and its marginal viewer against one `reference` viewer.
+fn issue_14_checks(
+    r: &BenchReport,
+    c: &str,
+    lo: usize,
+    hi: usize,
+    reference_hi: Option<&BenchPoint>,
+) -> Vec<Check> {
+    let mut out = Vec::new();
     if let (Some(s_lo), Some(s_hi), Some(r_lo), Some(r_hi)) = (
-        point(r, Scenario::Path, "shared", lo),
-        point(r, Scenario::Path, "shared", hi),
+        point(r, Scenario::Path, c, lo),
+        point(r, Scenario::Path, c, hi),
         point(r, Scenario::Path, "reference", lo),
         reference_hi,
     ) {
         out.push(Check {
             what: format!(
-                "shared: frame GPU ms at {hi} viewers / reference's (median of per-frame ratios; issue 14)"
+                "{c}: frame GPU ms at {hi} viewers / reference's (median of per-frame ratios; issue 14)"
             ),
             value: paired_ratio(s_hi, r_hi),
             bound: Some(MAX_TIME_RATIO_14),
@@ -249,7 +283,7 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
             let marginal = (s_hi.frame_gpu_ms.median - s_lo.frame_gpu_ms.median) / (hi - lo) as f64;
             out.push(Check {
                 what: format!(
-                    "shared: marginal viewer (T{hi} − T{lo}) / {} / reference's {lo}-viewer frame",
+                    "{c}: marginal viewer (T{hi} − T{lo}) / {} / reference's {lo}-viewer frame",
                     hi - lo
                 ),
                 value: ratio(marginal, r_lo.frame_gpu_ms.median),
@@ -258,25 +292,13 @@ pub fn checks(r: &BenchReport) -> Vec<Check> {
         }
     }
     if let (Some(s), Some(m)) = (
-        point(r, Scenario::Path, "shared", hi),
+        point(r, Scenario::Path, c, hi),
         point(r, Scenario::Path, "maps", hi),
     ) {
         out.push(Check {
-            what: format!("shared: frame GPU ms at {hi} viewers / maps' (ratio of the medians)"),
+            what: format!("{c}: frame GPU ms at {hi} viewers / maps' (ratio of the medians)"),
             value: ratio(s.frame_gpu_ms.median, m.frame_gpu_ms.median),
             bound: Some(MAX_TIME_VS_MAPS),
-        });
-    }
-    let truth_of = |c: &str| {
-        r.truth
-            .as_ref()
-            .and_then(|t| t.flip.iter().find(|(n, _)| n == c).map(|(_, f)| *f))
-    };
-    if let (Some(s), Some(m)) = (truth_of("shared"), truth_of("maps")) {
-        out.push(Check {
-            what: "shared: FLIP vs truth − maps' FLIP vs truth (the one truth image)".into(),
-            value: s - m,
-            bound: Some(0.0),
         });
     }
     out

@@ -18,6 +18,8 @@ pub(crate) const FLAG_MAPS: u32 = 2048;
 pub(crate) const FLAG_LAYER_FULL: u32 = 4096;
 /// Ambient light from the shared SH grid (ambient_grid.rs), not the constant `ambient`.
 pub(crate) const FLAG_SH_AMBIENT: u32 = 8192;
+/// `shared` with `froxel_maps`: froxels read the maps of the lights that have one.
+pub(crate) const FLAG_FROXEL_MAPS: u32 = 16384;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 11;

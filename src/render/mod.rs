@@ -334,6 +334,11 @@ impl Renderer {
                     stages.frustum.add_pass(&ctx, e, s, maps, ts)
                 });
             }
+        } else if cull {
+            // `froxel_maps` without a grid: the culling passes alone.
+            f.each_set(Stage::GridRequests, |e, s| {
+                stages.cull.add_passes(&ctx, e, s, ts)
+            });
         }
         if world.has_media() {
             f.each_set(Stage::FroxelLighting, |e, s| {

@@ -190,6 +190,11 @@ settings! {
     #[serde(default)]
     shadow_map_px: u32 = 4096, was "map", "shadow_map";
 
+    /// `shared`'s froxels read the shared shadow maps (2×2 PCF, as `maps` does) for every
+    /// light that has one; the grid and the shadow frustum serve the lights without.
+    #[serde(default)]
+    froxel_maps: bool = false;
+
     /// Node spacing of the shared media transmittance volumes, metres (`shared` and `maps`; 0:
     /// every froxel and pixel marches its own shadow ray through the media, as
     /// `reference` does).
@@ -670,10 +675,17 @@ impl Settings {
 
     /// Depth slices of the shadow frustum (none in `maps` mode, which has no frustum).
     pub(crate) fn frustum_slices(&self) -> u32 {
-        if self.mode == Mode::Maps {
+        if self.mode == Mode::Maps || self.froxels_read_maps() {
             return 0;
         }
         (self.slices as f32 * self.frustum_slice_fraction).ceil() as u32
+    }
+
+    /// Whether `shared`'s froxels read the shadow maps of the lights that have one
+    /// (`froxel_maps`; the shadow frustum then has no slices, and the grid serves only
+    /// lights without a map).
+    pub(crate) fn froxels_read_maps(&self) -> bool {
+        self.mode == Mode::Shared && self.froxel_maps && self.shadow_map_px > 0
     }
 
     /// Whether the shared shadow maps and media transmittance volumes are built (`shared`

@@ -116,8 +116,20 @@ impl World {
             smoke_shadows::node_count(&scene, &settings),
             ambient_plan.as_ref(),
         )?;
+        let shadow_maps = ShadowMaps::new(
+            &ctx,
+            &scene,
+            if light_space {
+                settings.shadow_map_px
+            } else {
+                0
+            },
+        );
+        // With `froxel_maps` and a map for every light, no froxel reads a grid.
+        let grid_needed =
+            shared && !(settings.froxels_read_maps() && shadow_maps.maps_every_light());
         let grid = match scene.media_bounds() {
-            Some(bounds) if shared && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
+            Some(bounds) if grid_needed && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
                 &ctx,
                 &gpu.layout,
                 bounds,
@@ -127,15 +139,7 @@ impl World {
             _ => None,
         };
         Ok(World {
-            shadow_maps: ShadowMaps::new(
-                &ctx,
-                &scene,
-                if light_space {
-                    settings.shadow_map_px
-                } else {
-                    0
-                },
-            ),
+            shadow_maps,
             transmittance: MediaTransmittance::new(&ctx, &gpu.layout, &scene, &light_media),
             layer: layer_plan.map(|p| MediaLayer::new(&ctx, &gpu.layout, p)),
             smoke: SmokeParticles::new(&ctx, &scene, &gpu.particles),
@@ -176,6 +180,15 @@ impl World {
     /// Whether the scene has media (else no froxel stage runs).
     pub(crate) fn has_media(&self) -> bool {
         !self.scene.media.is_empty()
+    }
+
+    /// Whether `shared`'s froxels read every light from the shadow maps (`froxel_maps`,
+    /// each light has a map, the scene has media): then no grid exists.
+    pub(crate) fn froxels_from_maps(&self) -> bool {
+        self.settings.froxels_read_maps()
+            && self.has_media()
+            && !self.scene.lights.is_empty()
+            && self.shadow_maps.maps_every_light()
     }
 
     /// The shared grid, when froxels read it this frame (media and lights in `shared`).
@@ -258,8 +271,12 @@ impl World {
         if ambient.is_some() {
             flags |= FLAG_SH_AMBIENT;
         }
-        // Only where the culling passes run: a grid exists (media and lights).
-        if s.culls_hidden_froxels() && self.grid.is_some() {
+        if s.froxels_read_maps() {
+            flags |= FLAG_FROXEL_MAPS;
+        }
+        // Only where the culling passes run: a grid exists, or the maps light every
+        // froxel (media and lights).
+        if s.culls_hidden_froxels() && (self.grid.is_some() || self.froxels_from_maps()) {
             flags |= FLAG_CULL;
         }
         let (lo, hi) = scene.bounds;
