@@ -73,6 +73,7 @@ const FLAG_MAPS: u32 = 2048u;    // mode `maps`: froxels read the shared shadow 
 const FLAG_LAYER_FULL: u32 = 4096u; // layer nodes hold σs, σt, emission and g (else one density)
 const FLAG_SH_AMBIENT: u32 = 8192u; // ambient light from the shared SH grid (else the constant `ambient`)
 const FLAG_FROXEL_MAPS: u32 = 16384u; // shared: froxels read the maps of the lights that have one
+const FLAG_MAP_EDGES: u32 = 32768u; // shared: where the grid's voxels disagree, the map
 
 struct View {
     view_proj: mat4x4f,

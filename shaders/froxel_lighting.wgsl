@@ -1,7 +1,8 @@
 // Stage 3 (000 §3.1.3): in-scattered light and extinction per froxel, all viewers in
 // one dispatch. `reference` traces a shadow ray per light per froxel (Hillaire 2015 with
-// ray-traced shadows); `shared` reads the shadow frustum for the near slices and the
-// shared grid (nearest voxel, or trilinear over 8 voxels) beyond; `maps` reads the
+// ray-traced shadows); `shared` reads the shared grid (nearest voxel, or trilinear over
+// 8 voxels), where its voxels disagree (a shadow edge) the light's shared shadow map,
+// and for lights without a map the shadow frustum in the near slices; `maps` reads the
 // shared shadow maps (shaders/shadow_lookup.wgsl, bindings 10–14) for every froxel.
 
 @group(1) @binding(0) var<storage, read> grid: array<u32>;
@@ -90,7 +91,8 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
         }
     } else {
         // shared: the lights with a map read it where FLAG_FROXEL_MAPS asks, the others
-        // the shadow frustum (near slices) or the grid.
+        // the shadow frustum (near slices) or the grid, whose shadow edges read the map
+        // where FLAG_MAP_EDGES asks.
         var mapped = 0u;
         if (frame.flags & FLAG_FROXEL_MAPS) != 0u {
             for (var li = 0u; li < frame.light_count; li++) {
@@ -117,6 +119,16 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 let gv = grid_visibility(p);
                 other = gv.vis;
                 trace = gv.missing;
+                // Where the voxels around p disagree, a shadow edge runs between them:
+                // the map resolves it (FLAG_MAP_EDGES).
+                if (frame.flags & FLAG_MAP_EDGES) != 0u {
+                    for (var li = 0u; li < frame.light_count; li++) {
+                        if other[li] > 0.0 && other[li] < 1.0 && has_map(li) {
+                            let l = lights[li];
+                            other[li] = map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
+                        }
+                    }
+                }
             }
             for (var li = 0u; li < 8u; li++) {
                 if ((mapped >> li) & 1u) == 0u {

@@ -132,7 +132,10 @@ fn froxel_maps_light_shared_froxels_without_a_grid() {
         assert!(shared.shared_grid().is_none());
         assert_eq!(b.stats.grid_dims, [0, 0, 0]);
         let stages: Vec<&str> = b.stats.dispatches.iter().map(|(s, _)| s.as_str()).collect();
-        assert!(stages.contains(&"grid_requests"), "the culling runs: {stages:?}");
+        assert!(
+            stages.contains(&"grid_requests"),
+            "the culling runs: {stages:?}"
+        );
         for stage in ["shared_grid", "shadow_frustum"] {
             assert!(!stages.contains(&stage), "{stage} ran: {stages:?}");
         }
@@ -144,7 +147,10 @@ fn froxel_maps_light_shared_froxels_without_a_grid() {
         );
         for (i, (ra, rb)) in a.images.iter().zip(&b.images).enumerate() {
             let e = compare(ra, rb, w, h).unwrap();
-            println!("t {t:.3} viewer {i}: froxel_maps vs maps FLIP {:.5}", e.flip_mean);
+            println!(
+                "t {t:.3} viewer {i}: froxel_maps vs maps FLIP {:.5}",
+                e.flip_mean
+            );
             assert!(e.flip_mean <= 0.002, "viewer {i}: FLIP {}", e.flip_mean);
         }
     }

@@ -20,6 +20,8 @@ pub(crate) const FLAG_LAYER_FULL: u32 = 4096;
 pub(crate) const FLAG_SH_AMBIENT: u32 = 8192;
 /// `shared` with `froxel_maps`: froxels read the maps of the lights that have one.
 pub(crate) const FLAG_FROXEL_MAPS: u32 = 16384;
+/// `shared` with `map_edges`: where the grid's voxels around a froxel disagree, the map.
+pub(crate) const FLAG_MAP_EDGES: u32 = 32768;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 11;

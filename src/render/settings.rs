@@ -190,8 +190,20 @@ settings! {
     #[serde(default)]
     shadow_map_px: u32 = 4096, was "map", "shadow_map";
 
+    /// Shadow edges in the grid from the shadow maps (`shared`): where the 8 voxels
+    /// around a froxel disagree for a light with a map, the froxel reads the map (2×2
+    /// PCF) instead of their blend, and the shadow frustum is left out for such lights
+    /// (off: the paper's frustum and trilinear voxels).
+    ///
+    /// Beyond the paper: the grid's 0.25 m voxels blur shafts, and a lookup costs one
+    /// map read only where an edge runs (docs/decisions.md, "Shadow edges from the maps").
+    // Reports from before a setting existed read it as off (`serde(default)`).
+    #[serde(default)]
+    map_edges: bool = true;
+
     /// `shared`'s froxels read the shared shadow maps (2×2 PCF, as `maps` does) for every
-    /// light that has one; the grid and the shadow frustum serve the lights without.
+    /// light that has one: no grid and no shadow frustum when every light has one, the
+    /// hidden froxels still culled.
     #[serde(default)]
     froxel_maps: bool = false;
 
@@ -675,7 +687,7 @@ impl Settings {
 
     /// Depth slices of the shadow frustum (none in `maps` mode, which has no frustum).
     pub(crate) fn frustum_slices(&self) -> u32 {
-        if self.mode == Mode::Maps || self.froxels_read_maps() {
+        if self.mode == Mode::Maps || self.froxels_read_maps() || self.edges_from_maps() {
             return 0;
         }
         (self.slices as f32 * self.frustum_slice_fraction).ceil() as u32
@@ -686,6 +698,12 @@ impl Settings {
     /// lights without a map).
     pub(crate) fn froxels_read_maps(&self) -> bool {
         self.mode == Mode::Shared && self.froxel_maps && self.shadow_map_px > 0
+    }
+
+    /// Whether `shared`'s grid takes its shadow edges from the maps (`map_edges`; the
+    /// shadow frustum then has no slices: every light with geometry has a map).
+    pub(crate) fn edges_from_maps(&self) -> bool {
+        self.mode == Mode::Shared && self.map_edges && self.shadow_map_px > 0
     }
 
     /// Whether the shared shadow maps and media transmittance volumes are built (`shared`

@@ -274,6 +274,9 @@ impl World {
         if s.froxels_read_maps() {
             flags |= FLAG_FROXEL_MAPS;
         }
+        if s.edges_from_maps() {
+            flags |= FLAG_MAP_EDGES;
+        }
         // Only where the culling passes run: a grid exists, or the maps light every
         // froxel (media and lights).
         if s.culls_hidden_froxels() && (self.grid.is_some() || self.froxels_from_maps()) {
