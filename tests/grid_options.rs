@@ -314,8 +314,10 @@ fn near_field_fog_reads_the_shadow_map_instead_of_tracing() {
     let scene = Arc::new(Scene::load("colonnade").unwrap());
     let cams = scene.camera.viewers(2, 1.0);
     let mut rays = Renderer::new(gpu(), scene.clone(), settings(true, true)).unwrap();
+    // The paper's near field (the frustum), not the grid's edges from the map.
     let map_settings = Settings {
         shadow_map_px: 4096,
+        map_edges: false,
         ..settings(true, true)
     };
     let mut map = Renderer::new(gpu(), scene.clone(), map_settings).unwrap();
