@@ -660,13 +660,13 @@ impl ShadowMaps {
         self.scene_maps.bytes(n) + self.mover_maps.bytes(n) + self.local.bytes()
     }
 
-    /// Forgets what the maps were rendered for: the next frame renders them all.
     /// Whether every light of the scene has a map (none without geometry or with
     /// `shadow_map_px` 0).
     pub(crate) fn maps_every_light(&self) -> bool {
         self.info_cpu.iter().all(|i| i.scene.layer >= 0)
     }
 
+    /// Forgets what the maps were rendered for: the next frame renders them all.
     pub(crate) fn invalidate(&mut self) {
         self.scene_maps.rendered_for = None;
         self.mover_maps.rendered_for = None;
