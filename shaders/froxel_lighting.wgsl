@@ -62,6 +62,13 @@ fn grid_visibility(p: vec3f) -> GridVisibility {
     return GridVisibility(vis, missing);
 }
 
+// Light li's visibility at fog point p from its shared map (2×2 PCF, one texel towards
+// the light): `maps`' lookup, and `shared`'s with `froxel_maps` or at a grid edge.
+fn fog_map_visibility(li: u32, p: vec3f) -> f32 {
+    let l = lights[li];
+    return map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
+}
+
 // The radiance source and extinction of froxel (xy, slice) of view `v` at `p`, seen
 // along `dir` (the column's view ray); adds the shadow rays it traced to `rays`.
 fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<function, u32>) -> vec4f {
@@ -83,7 +90,7 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 continue;
             }
             if has_map(li) {
-                vis[li] = map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
+                vis[li] = fog_map_visibility(li, p);
             } else {
                 *rays += 1u;
                 vis[li] = select(0.0, 1.0, light_visible(l, p));
@@ -98,10 +105,9 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
             for (var li = 0u; li < frame.light_count; li++) {
                 if has_map(li) {
                     mapped |= 1u << li;
-                    let l = lights[li];
                     vis[li] = 0.0;
-                    if any(light_radiance(l, p) != vec3f(0.0)) {
-                        vis[li] = map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
+                    if any(light_radiance(lights[li], p) != vec3f(0.0)) {
+                        vis[li] = fog_map_visibility(li, p);
                     }
                 }
             }
@@ -124,8 +130,7 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 if (frame.flags & FLAG_MAP_EDGES) != 0u {
                     for (var li = 0u; li < frame.light_count; li++) {
                         if other[li] > 0.0 && other[li] < 1.0 && has_map(li) {
-                            let l = lights[li];
-                            other[li] = map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
+                            other[li] = fog_map_visibility(li, p);
                         }
                     }
                 }
