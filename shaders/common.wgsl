@@ -56,6 +56,13 @@ struct Frame {
     sh_cell: f32,
     sh_dims: vec3u,
     sh_probes: u32,
+    // The media whose density the shared grid carries (FLAG_GRID_MEDIA): the box they
+    // fill, the density of one step of its 8-bit code, and the first of them (every one
+    // has its coefficients).
+    grid_media_min: vec3f,
+    grid_media_unit: f32,
+    grid_media_max: vec3f,
+    grid_media_first: u32,
 }
 
 // Frame.flags
@@ -74,6 +81,7 @@ const FLAG_LAYER_FULL: u32 = 4096u; // layer nodes hold σs, σt, emission and g
 const FLAG_SH_AMBIENT: u32 = 8192u; // ambient light from the shared SH grid (else the constant `ambient`)
 const FLAG_FROXEL_MAPS: u32 = 16384u; // shared: froxels read the maps of the lights that have one
 const FLAG_MAP_EDGES: u32 = 32768u; // shared: where the grid's voxels disagree, the map
+const FLAG_GRID_MEDIA: u32 = 65536u; // shared: the grid carries the costly media's density (grid_density)
 
 struct View {
     view_proj: mat4x4f,
@@ -266,6 +274,7 @@ const C_BRICKS: u32 = 7u;        // sparse grid: bricks requested this frame (al
 const C_TRANSMITTANCE_NODES: u32 = 8u; // shared media transmittance nodes filled
 const C_LAYER_BRICKS: u32 = 9u;  // media layer: bricks asked for this frame (in the pool or not)
 const C_LAYER_NODES: u32 = 10u;  // media layer: nodes filled this frame
+const C_GRID_MEDIA_VOXELS: u32 = 11u; // grid_media: voxels whose density was filled this frame
 
 // Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a
 // table over all bricks holds 0 (unused), slot + 1 (allocated in the pool) or
@@ -540,10 +549,10 @@ fn sample_media_where(p: vec3f, layer: u32) -> MediumSample {
     var s = MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
     var gw = 0.0;
     for (var i = 0u; i < frame.medium_count; i++) {
-        let m = media[i];
-        if layer != ALL_MEDIA && m.in_layer != layer {
+        if layer != ALL_MEDIA && media[i].in_layer != layer {
             continue;
         }
+        let m = media[i];
         let d = medium_density(m, p);
         if d <= 0.0 {
             continue;
@@ -637,14 +646,19 @@ fn media_at(p: vec3f) -> MediumSample {
     if !l.found {
         l.s = sample_media_where(p, 1u);
     }
-    let o = sample_media_where(p, 0u);
-    var s = l.s;
-    let wl = s.scattering.x + s.scattering.y + s.scattering.z;
-    let wo = o.scattering.x + o.scattering.y + o.scattering.z;
-    s.g = select(0.0, (s.g * wl + o.g * wo) / (wl + wo), wl + wo > 0.0);
-    s.scattering += o.scattering;
-    s.extinction += o.extinction;
-    s.emission += o.emission;
+    return combine_media(l.s, sample_media_where(p, 0u));
+}
+
+// Two sets of media at one point as one: σs, σt and emission summed, g weighted by
+// scattering.
+fn combine_media(a: MediumSample, b: MediumSample) -> MediumSample {
+    var s = a;
+    let wa = a.scattering.x + a.scattering.y + a.scattering.z;
+    let wb = b.scattering.x + b.scattering.y + b.scattering.z;
+    s.g = select(0.0, (a.g * wa + b.g * wb) / (wa + wb), wa + wb > 0.0);
+    s.scattering += b.scattering;
+    s.extinction += b.extinction;
+    s.emission += b.emission;
     return s;
 }
 

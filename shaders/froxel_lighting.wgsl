@@ -11,6 +11,9 @@
 @group(1) @binding(3) var<storage, read> history: array<vec2u>;
 @group(1) @binding(4) var<storage, read> brick_table: array<u32>;
 @group(1) @binding(5) var<storage, read> column_limit: array<u32>;
+// FLAG_GRID_MEDIA: the grid's media density, 8 bits per voxel in the grid's layout
+// (shaders/shared_grid.wgsl fills it).
+@group(1) @binding(6) var<storage, read> grid_density: array<u32>;
 
 // A voxel of a sparse grid whose brick was not allocated (pool full).
 const MASK_MISSING: u32 = 0x100u;
@@ -29,10 +32,56 @@ fn grid_mask(c: vec3i) -> u32 {
     return (word >> (8u * (q.x % 4u))) & 0xffu;
 }
 
+// grid_visibility's trilinear read of the dense grid: four voxels share a word along x,
+// so the two x-neighbours of each (y, z) corner pair come from one word three times in
+// four (5 reads instead of 8 on average). Same sums, in the same order, as the
+// voxel-by-voxel read. With `media`, the grid's media density too, from the same words
+// of `grid_density`.
+fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
+    var vis: array<f32, 8>;
+    var density = 0.0;
+    let top = vec3i(frame.grid_dims) - 1;
+    let x0 = u32(clamp(base.x, 0, top.x));
+    let x1 = u32(clamp(base.x + 1, 0, top.x));
+    for (var yz = 0u; yz < 4u; yz++) {
+        let oy = yz & 1u;
+        let oz = yz >> 1u;
+        let y = u32(clamp(base.y + i32(oy), 0, top.y));
+        let z = u32(clamp(base.z + i32(oz), 0, top.z));
+        let row = frame.grid_words_x * (y + frame.grid_dims.y * z);
+        let w0 = grid[x0 / 4u + row];
+        var w1 = w0;
+        if x1 / 4u != x0 / 4u {
+            w1 = grid[x1 / 4u + row];
+        }
+        let m0 = (w0 >> (8u * (x0 % 4u))) & 0xffu;
+        let m1 = (w1 >> (8u * (x1 % 4u))) & 0xffu;
+        let wy = select(1.0 - f.y, f.y, oy == 1u);
+        let wz = select(1.0 - f.z, f.z, oz == 1u);
+        let a = (1.0 - f.x) * wy * wz;
+        let b = f.x * wy * wz;
+        for (var li = 0u; li < 8u; li++) {
+            vis[li] += a * f32((m0 >> li) & 1u);
+            vis[li] += b * f32((m1 >> li) & 1u);
+        }
+        if media {
+            let d0 = grid_density[x0 / 4u + row];
+            var d1 = d0;
+            if x1 / 4u != x0 / 4u {
+                d1 = grid_density[x1 / 4u + row];
+            }
+            density += a * f32((d0 >> (8u * (x0 % 4u))) & 0xffu) + b * f32((d1 >> (8u * (x1 % 4u))) & 0xffu);
+        }
+    }
+    return GridVisibility(vis, false, density * frame.grid_media_unit);
+}
+
 struct GridVisibility {
     vis: array<f32, 8>,
     // Some voxel read was not in the (sparse) grid: trace rays instead.
     missing: bool,
+    // The grid's media density at the point (dense_trilinear with `media`; else 0).
+    density: f32,
 }
 
 // Visibility of each light at p from the shared grid.
@@ -44,11 +93,14 @@ fn grid_visibility(p: vec3f) -> GridVisibility {
         for (var li = 0u; li < 8u; li++) {
             vis[li] = f32((m >> li) & 1u);
         }
-        return GridVisibility(vis, m == MASK_MISSING);
+        return GridVisibility(vis, m == MASK_MISSING, 0.0);
     }
     var missing = false;
     let base = vec3i(floor(g));
     let f = g - floor(g);
+    if (frame.flags & FLAG_SPARSE) == 0u {
+        return dense_trilinear(base, f, false);
+    }
     for (var k = 0u; k < 8u; k++) {
         let o = vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
         let w3 = select(1.0 - f, f, vec3<bool>(o == vec3i(1)));
@@ -59,7 +111,7 @@ fn grid_visibility(p: vec3f) -> GridVisibility {
             vis[li] += w * f32((m >> li) & 1u);
         }
     }
-    return GridVisibility(vis, missing);
+    return GridVisibility(vis, missing, 0.0);
 }
 
 // Light li's visibility at fog point p from its shared map (2×2 PCF, one texel towards
@@ -72,7 +124,23 @@ fn fog_map_visibility(li: u32, p: vec3f) -> f32 {
 // The radiance source and extinction of froxel (xy, slice) of view `v` at `p`, seen
 // along `dir` (the column's view ray); adds the shadow rays it traced to `rays`.
 fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<function, u32>) -> vec4f {
-    let m = media_at(p);
+    // With the media's density in the grid, a froxel inside their box that reads the
+    // grid takes light bits and density from the same words (the other media, if any,
+    // analytically); the rest evaluate the media.
+    let from_grid = (frame.flags & FLAG_GRID_MEDIA) != 0u && slice >= frame.frustum_slices
+        && all(p >= frame.grid_media_min) && all(p <= frame.grid_media_max);
+    var m: MediumSample;
+    var gv: GridVisibility;
+    if from_grid {
+        let g = grid_coord(p);
+        gv = dense_trilinear(vec3i(floor(g)), g - floor(g), true);
+        let gm = media[frame.grid_media_first];
+        let d = gv.density;
+        let grid_part = MediumSample(gm.scattering * d, medium_extinction(gm) * d, gm.emission * d, gm.g);
+        m = combine_media(grid_part, sample_media_where(p, 0u));
+    } else {
+        m = media_at(p);
+    }
     if m.extinction <= 0.0 && all(m.emission <= vec3f(0.0)) {
         return vec4f(0.0);
     }
@@ -122,7 +190,9 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                     other[li] = f32((mask >> li) & 1u);
                 }
             } else {
-                let gv = grid_visibility(p);
+                if !from_grid {
+                    gv = grid_visibility(p);
+                }
                 other = gv.vis;
                 trace = gv.missing;
                 // Where the voxels around p disagree, a shadow edge runs between them:

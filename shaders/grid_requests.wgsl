@@ -87,7 +87,11 @@ fn request_column(gid: vec3u) {
     var prev = vec3i(-2147483647);
     for (var slice = frame.frustum_slices; slice <= last; slice++) {
         let p = froxel_sample(v, gid.xy, slice).p;
-        if !may_have_media(p) {
+        // Inside the box of the grid's media (FLAG_GRID_MEDIA) froxel lighting reads
+        // their density from the grid wherever the media are or are not.
+        let grid_media = (frame.flags & FLAG_GRID_MEDIA) != 0u
+            && all(p >= frame.grid_media_min) && all(p <= frame.grid_media_max);
+        if !grid_media && !may_have_media(p) {
             continue;
         }
         let g = grid_coord(p);

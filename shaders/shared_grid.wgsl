@@ -12,6 +12,22 @@
 @group(1) @binding(2) var<storage, read> requests: array<u32>;
 @group(1) @binding(3) var<storage, read_write> valid: array<u32>;
 @group(1) @binding(4) var<storage, read> slot_brick: array<u32>;
+// FLAG_GRID_MEDIA: the grid's media density at each needed voxel's centre, 8 bits in
+// units of frame.grid_media_unit, in the grid's layout (4 voxels per word). Filled every
+// frame for the voxels needed (the noise moves with the wind), whatever their light bits.
+@group(1) @binding(5) var<storage, read_write> grid_density: array<u32>;
+
+// Summed density of the media the grid carries (in_layer with FLAG_GRID_MEDIA) at `p`,
+// as its 8-bit code.
+fn density_code(p: vec3f) -> u32 {
+    var d = 0.0;
+    for (var i = 0u; i < frame.medium_count; i++) {
+        if media[i].in_layer == 1u {
+            d += medium_density(media[i], p);
+        }
+    }
+    return u32(clamp(round(d / frame.grid_media_unit), 0.0, 255.0));
+}
 
 // Traces every light (with radiance) from the centre of voxel q; the light bitmask.
 fn trace_voxel(q: vec3u, rays: ptr<function, u32>) -> u32 {
@@ -70,6 +86,7 @@ fn main(
     var rays = 0u;
     var traced = 0u;
     var needed = 0u;
+    var filled = 0u;
     let dims = frame.grid_dims;
     let in_grid = gid.x < frame.grid_words_x && gid.y < dims.y && gid.z < dims.z;
     let word_index = gid.x + frame.grid_words_x * (gid.y + dims.y * gid.z);
@@ -107,9 +124,12 @@ fn main(
         if (frame.flags & FLAG_TRILINEAR) != 0u {
             radius = 1.732 * frame.voxel_size;
         }
+        let media = (frame.flags & FLAG_GRID_MEDIA) != 0u;
+        var codes = 0u;
+        var coded = 0u;
         for (var i = 0u; i < 4u; i++) {
             let x = gid.x * 4u + i;
-            if x >= dims.x || !may_trace {
+            if x >= dims.x || !(may_trace || media) {
                 break;
             }
             var seen = false;
@@ -127,8 +147,16 @@ fn main(
             if !seen {
                 continue;
             }
-            needed += 1u;
             let shift = 8u * i;
+            if media {
+                let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
+                codes |= density_code(centre) << shift;
+                coded |= 0xffu << shift;
+            }
+            if !may_trace {
+                continue;
+            }
+            needed += 1u;
             let current = (valid_bits >> shift) & 0xffu;
             let stale = all_lights & ~current;
             if stale == 0u {
@@ -139,6 +167,13 @@ fn main(
             valid_bits |= stale << shift;
             traced |= 1u << i;
             todo[atomicAdd(&todo_count, 1u)] = (lid << 2u) | i | (stale << 8u);
+        }
+        if coded != 0u {
+            if coded != 0xffffffffu {
+                codes |= grid_density[word_index] & ~coded;
+            }
+            grid_density[word_index] = codes;
+            filled = countOneBits(coded) / 8u;
         }
     }
     workgroupBarrier();
@@ -180,6 +215,7 @@ fn main(
     count(C_GRID_RAYS, rays);
     count(C_VOXELS_TRACED, countOneBits(traced));
     count(C_VOXELS_NEEDED, needed);
+    count(C_GRID_MEDIA_VOXELS, filled);
 }
 
 // Sparse grid update: one invocation per pool word (2D dispatch: x + y·64·workgroups_x);

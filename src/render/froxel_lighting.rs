@@ -90,7 +90,7 @@ pub(crate) struct FroxelLighting {
 
 impl FroxelLighting {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let own = [Read, Read, ReadWrite, Read, Read, Read]
+        let own = [Read, Read, ReadWrite, Read, Read, Read, Read]
             .iter()
             .enumerate()
             .map(|(i, a)| storage_entry(i as u32, *a))
@@ -126,6 +126,7 @@ impl FroxelLighting {
         // Without a grid its bindings are unused; the frustum buffer stands in.
         let grid_buffer = grid.map_or(&volumes.frustum, |g| &g.grid);
         let bricks = grid.map_or(&volumes.frustum, |g| &g.brick_table);
+        let density = grid.map_or(&volumes.frustum, |g| &g.density);
         let own = crate::gpu::buffer_entries(&[
             grid_buffer,
             &volumes.frustum,
@@ -133,6 +134,7 @@ impl FroxelLighting {
             set.history.buffer(volumes),
             bricks,
             &volumes.column_limit,
+            density,
         ]);
         let bg = maps.stage_bind_group(ctx, "froxel lighting", &self.layout, own);
         dispatch(

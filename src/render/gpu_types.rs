@@ -22,9 +22,11 @@ pub(crate) const FLAG_SH_AMBIENT: u32 = 8192;
 pub(crate) const FLAG_FROXEL_MAPS: u32 = 16384;
 /// `shared` with `map_edges`: where the grid's voxels around a froxel disagree, the map.
 pub(crate) const FLAG_MAP_EDGES: u32 = 32768;
+/// `shared` with `grid_media`: the grid carries the costly media's density.
+pub(crate) const FLAG_GRID_MEDIA: u32 = 65536;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
-pub(crate) const COUNTERS: usize = 11;
+pub(crate) const COUNTERS: usize = 12;
 pub(crate) const C_GRID_RAYS: usize = 0;
 pub(crate) const C_FRUSTUM_RAYS: usize = 1;
 pub(crate) const C_LIGHTING_RAYS: usize = 2;
@@ -36,6 +38,7 @@ pub(crate) const C_BRICKS: usize = 7;
 pub(crate) const C_TRANSMITTANCE_NODES: usize = 8;
 pub(crate) const C_LAYER_BRICKS: usize = 9;
 pub(crate) const C_LAYER_NODES: usize = 10;
+pub(crate) const C_GRID_MEDIA_VOXELS: usize = 11;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -81,6 +84,12 @@ pub(crate) struct FrameGpu {
     pub sh_cell: f32,
     pub sh_dims: [u32; 3],
     pub sh_probes: u32,
+    /// The media in the shared grid (`grid_media`, media_layer.rs `GridMedia`): the box
+    /// they fill, the density of one step of the 8-bit code, and their first medium.
+    pub grid_media_min: [f32; 3],
+    pub grid_media_unit: f32,
+    pub grid_media_max: [f32; 3],
+    pub grid_media_first: u32,
 }
 
 #[repr(C)]
@@ -234,7 +243,7 @@ impl From<&Medium> for MediumGpu {
     }
 }
 
-const _: () = assert!(std::mem::size_of::<FrameGpu>() == 224);
+const _: () = assert!(std::mem::size_of::<FrameGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);

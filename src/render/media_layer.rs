@@ -126,6 +126,77 @@ fn largest_extinction(m: &crate::scene::Medium) -> f32 {
     (m.scattering.element_sum() / 3.0 + m.absorption) * noise
 }
 
+/// Whether costly medium `m` is worth reading at voxels of `voxel_m`: a few voxels
+/// across, and not so dense that a trilinear read across one voxel moves its edge.
+fn fits_voxels(m: &crate::scene::Medium, voxel_m: f32) -> bool {
+    costly(m)
+        && smallest_extent(m) >= MIN_VOXELS_ACROSS * voxel_m
+        && largest_extinction(m) * voxel_m <= MAX_TAU_PER_VOXEL
+}
+
+/// Whether media `ids` share σs, σa, g and emission (then one density describes them).
+fn same_coefficients(scene: &Scene, ids: &[usize]) -> bool {
+    let key = |i: usize| {
+        let m = &scene.media[i];
+        (m.scattering, m.absorption, m.g, m.emission)
+    };
+    ids.iter().all(|&i| key(i) == key(ids[0]))
+}
+
+/// The media whose density the shared grid carries (`grid_media`; shared_grid.wgsl
+/// fills it, froxel_lighting.wgsl reads it): the costly media that fit the grid's voxels
+/// (as the layer chooses) and share their coefficients, so that one 8-bit density per
+/// voxel, in units of `unit`, describes them all.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct GridMedia {
+    /// Per scene medium: its density is in the grid.
+    pub in_grid: Vec<bool>,
+    /// The first of them (whose coefficients they all have).
+    pub first: u32,
+    /// The box that holds them (over their whole paths): froxels inside read the grid.
+    pub min: Vec3,
+    pub max: Vec3,
+    /// Density of one step of the 8-bit code: the largest summed density / 255.
+    pub unit: f32,
+}
+
+/// [`GridMedia`] for `scene` on a grid of `voxel_m` voxels, or `None` when no medium
+/// qualifies or the qualifying ones differ in their coefficients.
+pub(crate) fn grid_media(scene: &Scene, voxel_m: f32) -> Option<GridMedia> {
+    let in_grid: Vec<bool> = scene
+        .media
+        .iter()
+        .map(|m| fits_voxels(m, voxel_m))
+        .collect();
+    let ids: Vec<usize> = (0..scene.media.len()).filter(|&i| in_grid[i]).collect();
+    if ids.is_empty() || !same_coefficients(scene, &ids) {
+        return None;
+    }
+    let (min, max) = ids.iter().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), &i| (lo.min(scene.media[i].min), hi.max(scene.media[i].max)),
+    );
+    // Height fog and volumes reach density 1, noise scales it by at most 1 + amplitude.
+    let largest: f32 = ids
+        .iter()
+        .map(|&i| {
+            let m = &scene.media[i];
+            if m.noise.frequency > 0.0 {
+                1.0 + m.noise.amplitude
+            } else {
+                1.0
+            }
+        })
+        .sum();
+    Some(GridMedia {
+        in_grid,
+        first: ids[0] as u32,
+        min,
+        max,
+        unit: largest / 255.0,
+    })
+}
+
 /// The layer for `scene` at voxels of `voxel_m` (0: no layer), or `None` when no
 /// medium goes in it.
 pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
@@ -155,12 +226,7 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
         voxel *= 1.25;
     }
     let in_layer: Vec<bool> = (0..scene.media.len())
-        .map(|i| {
-            let m = &scene.media[i];
-            candidates.contains(&i)
-                && smallest_extent(m) >= MIN_VOXELS_ACROSS * voxel
-                && largest_extinction(m) * voxel <= MAX_TAU_PER_VOXEL
-        })
+        .map(|i| candidates.contains(&i) && fits_voxels(&scene.media[i], voxel))
         .collect();
     let ids: Vec<usize> = (0..scene.media.len()).filter(|&i| in_layer[i]).collect();
     if ids.is_empty() {
@@ -188,12 +254,7 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
             }
         }
     }
-    let first = &scene.media[ids[0]];
-    let full = ids.iter().any(|&i| {
-        let m = &scene.media[i];
-        (m.scattering, m.absorption, m.g, m.emission)
-            != (first.scattering, first.absorption, first.g, first.emission)
-    });
+    let full = !same_coefficients(scene, &ids);
     let brick_bytes = BRICK_NODES * if full { 16 } else { 4 };
     let max_capacity = covered.min(MAX_POOL_BYTES / brick_bytes).max(1) as u32;
     let animated = ids.iter().any(|&i| {

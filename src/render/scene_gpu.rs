@@ -198,6 +198,8 @@ impl SceneGpu {
 
     /// `light_media`: the media transmittance volumes' layout (`media_transmittance::plan`).
     /// `layer`: the world media layer's plan (`media_layer::plan`), if there is one.
+    /// `in_grid`: the media whose density the shared grid carries (`media_layer::grid_media`;
+    /// never with a layer): both mark their media `in_layer`.
     /// `ambient`: the shared ambient grid's probes (`ambient_grid::plan`), if any.
     pub(crate) fn new(
         ctx: &GpuContext,
@@ -205,6 +207,7 @@ impl SceneGpu {
         bvh: &Bvh,
         light_media: &[LightMediaGpu],
         layer: Option<&LayerPlan>,
+        in_grid: Option<&[bool]>,
         smoke_nodes: u64,
         ambient: Option<&super::ambient_grid::AmbientPlan>,
     ) -> anyhow::Result<SceneGpu> {
@@ -214,7 +217,9 @@ impl SceneGpu {
             .iter()
             .enumerate()
             .map(|(i, m)| MediumGpu {
-                in_layer: u32::from(layer.is_some_and(|l| l.in_layer[i])),
+                in_layer: u32::from(
+                    layer.is_some_and(|l| l.in_layer[i]) || in_grid.is_some_and(|g| g[i]),
+                ),
                 ..MediumGpu::from(m)
             })
             .collect();

@@ -201,6 +201,17 @@ settings! {
     #[serde(default)]
     map_edges: bool = true;
 
+    /// The media's density in the shared grid (`shared`, dense trilinear grid, no media
+    /// layer): the grid pass stores, beside each needed voxel's light bits, the density
+    /// of the costly media (height fog, noise, volumes) at its centre, once per frame for
+    /// every viewer; a froxel reads it with the same 8 voxels as the light bits instead of
+    /// evaluating the noise (off: every froxel evaluates the media).
+    ///
+    /// Beyond the paper: issue 14's "a froxel's work a few fetches" for density, in the
+    /// words the froxel reads anyway (docs/decisions.md, "Density in the shared grid").
+    #[serde(default)]
+    grid_media: bool = true;
+
     /// `shared`'s froxels read the shared shadow maps (2×2 PCF, as `maps` does) for every
     /// light that has one: no grid and no shadow frustum when every light has one, the
     /// hidden froxels still culled.
@@ -704,6 +715,16 @@ impl Settings {
     /// shadow frustum then has no slices: every light with geometry has a map).
     pub(crate) fn edges_from_maps(&self) -> bool {
         self.mode == Mode::Shared && self.map_edges && self.shadow_map_px > 0
+    }
+
+    /// Whether `shared`'s grid may carry the media's density (`grid_media`): a dense
+    /// trilinear grid, and no media layer (which would hold the same media).
+    pub(crate) fn density_in_grid(&self) -> bool {
+        self.mode == Mode::Shared
+            && self.grid_media
+            && self.trilinear
+            && self.brick_pool == 0
+            && self.media_voxel_m <= 0.0
     }
 
     /// Whether the shared shadow maps and media transmittance volumes are built (`shared`

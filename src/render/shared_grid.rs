@@ -9,6 +9,7 @@
 
 use super::froxel_cull::FroxelCull;
 use super::gpu_types::{FLAG_CACHE, FLAG_DEMAND, FLAG_SPARSE};
+use super::media_layer::GridMedia;
 use super::{dispatch, Settings, Stage, Timestamps, ViewerSet};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
@@ -38,6 +39,12 @@ pub struct SharedShadowGrid {
     pub(crate) brick_table: wgpu::Buffer,
     /// Sparse: the brick of each pool slot.
     slot_brick: wgpu::Buffer,
+    /// `grid_media`: the costly media's density at each needed voxel's centre, 8 bits in
+    /// units of `GridMedia::unit`, in the grid's layout (4 voxels per word); a 16-byte
+    /// stand-in without.
+    pub(crate) density: wgpu::Buffer,
+    /// The media the grid carries the density of (`grid_media`, dense grids).
+    pub(crate) media: Option<GridMedia>,
     policy: GridUpdate,
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
@@ -154,14 +161,17 @@ fn dispatch_1d(n: u64) -> [u32; 3] {
 }
 
 impl SharedShadowGrid {
-    /// A grid covering `bounds` with cubic voxels of `voxel_size_m`.
+    /// A grid covering `bounds` with cubic voxels of `voxel_size_m`; with `media` (a
+    /// dense grid only) it carries their density too.
     pub(crate) fn new(
         ctx: &GpuContext,
         scene_layout: &wgpu::BindGroupLayout,
         bounds: (Vec3, Vec3),
         voxel_size_m: f32,
         policy: GridUpdate,
+        media: Option<GridMedia>,
     ) -> anyhow::Result<Self> {
+        let media = media.filter(|_| !policy.sparse());
         let (dims, extent) = grid_dims(bounds, voxel_size_m);
         let voxels = dims.x as u64 * dims.y as u64 * dims.z as u64;
         let words_x = dims.x.div_ceil(4);
@@ -193,7 +203,7 @@ impl SharedShadowGrid {
         );
         let layout = ctx.storage_layout(
             "shared grid",
-            &[ReadWrite, ReadWrite, Read, ReadWrite, Read],
+            &[ReadWrite, ReadWrite, Read, ReadWrite, Read, ReadWrite],
         );
         let request_layout =
             ctx.storage_layout("grid requests", &[ReadWrite, ReadWrite, ReadWrite, Read]);
@@ -235,6 +245,11 @@ impl SharedShadowGrid {
             valid: storage("grid valid bits", valid_bytes)?,
             brick_table: storage("grid brick table", table_bytes)?,
             slot_brick: storage("grid brick slots", (pool * 4).max(16))?,
+            density: storage(
+                "shared grid media density",
+                if media.is_some() { words * 4 } else { 16 },
+            )?,
+            media,
             policy,
             pipeline: ctx.compute_pipeline("shared_grid", &module, &[scene_layout, &layout]),
             sparse_pipeline: ctx.compute_pipeline_entry(
@@ -413,6 +428,7 @@ impl SharedShadowGrid {
                 &self.requests,
                 &self.valid,
                 &self.slot_brick,
+                &self.density,
             ],
         );
         let pipeline = if self.policy.sparse() {
@@ -432,7 +448,7 @@ impl SharedShadowGrid {
     }
 
     /// Bytes of every grid buffer (words or pool, touched bits, requests, validity,
-    /// brick table and slots).
+    /// brick table and slots, media density).
     pub(crate) fn bytes(&self) -> u64 {
         [
             &self.grid,
@@ -441,6 +457,7 @@ impl SharedShadowGrid {
             &self.valid,
             &self.brick_table,
             &self.slot_brick,
+            &self.density,
         ]
         .iter()
         .map(|b| b.size())

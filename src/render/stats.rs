@@ -112,6 +112,10 @@ pub struct FrameStats {
     /// World media layer: nodes evaluated this frame (729 per brick filled).
     #[serde(default)]
     pub layer_nodes_filled: u64,
+    /// `grid_media`: grid voxels whose media density was evaluated this frame (once for
+    /// every viewer, in the grid pass; 0 without it).
+    #[serde(default)]
+    pub grid_media_voxels: u64,
     /// World media layer: bricks holding media after this frame (the pool grows for the
     /// next frame when the bricks seen did not fit).
     #[serde(default)]
@@ -226,6 +230,7 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         transmittance_nodes: c(C_TRANSMITTANCE_NODES),
         layer_bricks_filled: c(C_LAYER_NODES) / super::media_layer::BRICK_NODES,
         layer_nodes_filled: c(C_LAYER_NODES),
+        grid_media_voxels: c(C_GRID_MEDIA_VOXELS),
         layer_bricks_in_use,
         layer_pool_bricks: layer.map_or(0, |l| u64::from(l.plan().capacity)),
         layer_bytes_in_use: layer.map_or(0, |l| layer_bricks_in_use * l.plan().brick_bytes()),

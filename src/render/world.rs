@@ -107,15 +107,6 @@ impl World {
             None
         };
         let ambient_plan = ambient_grid::plan(&scene, settings.sh_ambient_m);
-        let gpu = SceneGpu::new(
-            &ctx,
-            &scene,
-            bvh,
-            &light_media,
-            layer_plan.as_ref(),
-            smoke_shadows::node_count(&scene, &settings),
-            ambient_plan.as_ref(),
-        )?;
         let shadow_maps = ShadowMaps::new(
             &ctx,
             &scene,
@@ -126,17 +117,33 @@ impl World {
             },
         );
         // With `froxel_maps` and a map for every light, no froxel reads a grid.
-        let grid_needed =
-            shared && !(settings.froxels_read_maps() && shadow_maps.maps_every_light());
-        let grid = match scene.media_bounds() {
-            Some(bounds) if grid_needed && !scene.lights.is_empty() => Some(SharedShadowGrid::new(
+        let grid_needed = shared
+            && !scene.lights.is_empty()
+            && !(settings.froxels_read_maps() && shadow_maps.maps_every_light());
+        let grid_bounds = scene.media_bounds().filter(|_| grid_needed);
+        let grid_media = grid_bounds
+            .filter(|_| settings.density_in_grid())
+            .and_then(|_| media_layer::grid_media(&scene, settings.voxel_size_m));
+        let gpu = SceneGpu::new(
+            &ctx,
+            &scene,
+            bvh,
+            &light_media,
+            layer_plan.as_ref(),
+            grid_media.as_ref().map(|g| g.in_grid.as_slice()),
+            smoke_shadows::node_count(&scene, &settings),
+            ambient_plan.as_ref(),
+        )?;
+        let grid = match grid_bounds {
+            Some(bounds) => Some(SharedShadowGrid::new(
                 &ctx,
                 &gpu.layout,
                 bounds,
                 settings.voxel_size_m,
                 GridUpdate::of(&settings),
+                grid_media,
             )?),
-            _ => None,
+            None => None,
         };
         Ok(World {
             shadow_maps,
@@ -253,6 +260,9 @@ impl World {
         }
         if let Some(g) = &self.grid {
             flags |= g.update().flags();
+            if g.media.is_some() {
+                flags |= FLAG_GRID_MEDIA;
+            }
         }
         if self.transmittance.in_use() {
             flags |= FLAG_MEDIA_T;
@@ -284,6 +294,7 @@ impl World {
         }
         let (lo, hi) = scene.bounds;
         let g = self.grid.as_ref();
+        let gm = g.and_then(|g| g.media.as_ref());
         Ok(FrameGpu {
             grid_min: g.map_or([0.0; 3], |g| g.min.to_array()),
             voxel_size: g.map_or(1.0, |g| g.voxel_size_m),
@@ -326,6 +337,10 @@ impl World {
             sh_cell: ambient.map_or(1.0, |a| a.cell),
             sh_dims: ambient.map_or([1; 3], |a| a.dims.to_array()),
             sh_probes: ambient.map_or(0, |a| a.probes()),
+            grid_media_min: gm.map_or([0.0; 3], |m| m.min.to_array()),
+            grid_media_unit: gm.map_or(0.0, |m| m.unit),
+            grid_media_max: gm.map_or([-1.0; 3], |m| m.max.to_array()),
+            grid_media_first: gm.map_or(0, |m| m.first),
         })
     }
 
