@@ -89,6 +89,16 @@ fn cluster_triangles(mesh: &TriangleMesh) -> (Vec<[u32; 3]>, Vec<RasterCluster>)
     (tris, clusters)
 }
 
+/// Which media the world reads from a shared structure instead of analytically (both
+/// mark theirs `in_layer`; never both at once).
+#[derive(Clone, Copy, Default)]
+pub(crate) struct SharedMedia<'a> {
+    /// The world media layer's plan (`media_layer::plan`), if there is one.
+    pub layer: Option<&'a LayerPlan>,
+    /// The media whose density the shared grid carries (`media_layer::grid_media`).
+    pub in_grid: Option<&'a [bool]>,
+}
+
 /// Scene buffers: BVH, lights, media, and the small per-frame uniforms and counters.
 pub(crate) struct SceneGpu {
     pub frame: wgpu::Buffer,
@@ -197,20 +207,18 @@ impl SceneGpu {
     }
 
     /// `light_media`: the media transmittance volumes' layout (`media_transmittance::plan`).
-    /// `layer`: the world media layer's plan (`media_layer::plan`), if there is one.
-    /// `in_grid`: the media whose density the shared grid carries (`media_layer::grid_media`;
-    /// never with a layer): both mark their media `in_layer`.
+    /// `shared_media`: the media read from the layer or the grid instead of analytically.
     /// `ambient`: the shared ambient grid's probes (`ambient_grid::plan`), if any.
     pub(crate) fn new(
         ctx: &GpuContext,
         scene: &Scene,
         bvh: &Bvh,
         light_media: &[LightMediaGpu],
-        layer: Option<&LayerPlan>,
-        in_grid: Option<&[bool]>,
+        shared_media: SharedMedia<'_>,
         smoke_nodes: u64,
         ambient: Option<&super::ambient_grid::AmbientPlan>,
     ) -> anyhow::Result<SceneGpu> {
+        let SharedMedia { layer, in_grid } = shared_media;
         let lights: Vec<LightGpu> = scene.lights.iter().map(LightGpu::from).collect();
         let media: Vec<MediumGpu> = scene
             .media

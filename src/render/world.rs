@@ -8,7 +8,7 @@ use super::ambient_grid::{self, AmbientGrid};
 use super::gpu_types::*;
 use super::media_layer::{self, MediaLayer};
 use super::media_transmittance::{self, MediaTransmittance};
-use super::scene_gpu::SceneGpu;
+use super::scene_gpu::{SceneGpu, SharedMedia};
 use super::shadow_maps::ShadowMaps;
 use super::shared_grid::{GridUpdate, SharedShadowGrid};
 use super::smoke_particles::SmokeParticles;
@@ -129,8 +129,10 @@ impl World {
             &scene,
             bvh,
             &light_media,
-            layer_plan.as_ref(),
-            grid_media.as_ref().map(|g| g.in_grid.as_slice()),
+            SharedMedia {
+                layer: layer_plan.as_ref(),
+                in_grid: grid_media.as_ref().map(|g| g.in_grid.as_slice()),
+            },
             smoke_shadows::node_count(&scene, &settings),
             ambient_plan.as_ref(),
         )?;
