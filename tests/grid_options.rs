@@ -167,7 +167,12 @@ fn cached_equals_fresh(scene: Arc<Scene>, t0: f32, t1: f32, max_ratio: f64) {
 fn sparse_bricks_give_the_dense_demand_driven_image() {
     let scene = Arc::new(Scene::load("colonnade").unwrap());
     let cams = scene.camera.viewers(2, 1.0);
-    let mut dense = Renderer::new(gpu(), scene.clone(), settings(true, false)).unwrap();
+    // The dense grid without the media's density (the sparse grid has none).
+    let dense_settings = Settings {
+        grid_media: false,
+        ..settings(true, false)
+    };
+    let mut dense = Renderer::new(gpu(), scene.clone(), dense_settings).unwrap();
     let sparse_settings = Settings {
         brick_pool: 4096,
         ..settings(false, false)

@@ -134,6 +134,28 @@ fn fits_voxels(m: &crate::scene::Medium, voxel_m: f32) -> bool {
         && largest_extinction(m) * voxel_m <= MAX_TAU_PER_VOXEL
 }
 
+/// Whether voxels of `voxel_m` resolve medium `m`'s detail with two voxels or more: the
+/// finest octave's lattice of its density noise, of a volume's surface displacement
+/// (over its radius), a height fog's falloff length. (Coarser voxels smooth the noise
+/// away: 0.5 m voxels over a 0.5 m lattice put a 3-octave fog 0.0075 mean FLIP away from
+/// evaluating it, `extinction_1e4_between_the_sun_and_the_fog`.)
+fn resolves_detail(m: &crate::scene::Medium, voxel_m: f32) -> bool {
+    let finest = |frequency: f32, octaves: u32| {
+        1.0 / (frequency * (1u32 << octaves.saturating_sub(1).min(16)) as f32)
+    };
+    let mut scale = f32::INFINITY;
+    if m.noise.frequency > 0.0 {
+        scale = scale.min(finest(m.noise.frequency, m.noise.octaves));
+    }
+    if let Some(v) = m.volume.filter(|v| v.amplitude > 0.0 && v.frequency > 0.0) {
+        scale = scale.min(v.radius_m * finest(v.frequency, v.octaves));
+    }
+    if m.kind == MediumKind::Height {
+        scale = scale.min(m.radius_or_falloff);
+    }
+    voxel_m <= 0.5 * scale
+}
+
 /// Whether media `ids` share σs, σa, g and emission (then one density describes them).
 fn same_coefficients(scene: &Scene, ids: &[usize]) -> bool {
     let key = |i: usize| {
@@ -145,8 +167,9 @@ fn same_coefficients(scene: &Scene, ids: &[usize]) -> bool {
 
 /// The media whose density the shared grid carries (`grid_media`; shared_grid.wgsl
 /// fills it, froxel_lighting.wgsl reads it): the costly media that fit the grid's voxels
-/// (as the layer chooses) and share their coefficients, so that one 8-bit density per
-/// voxel, in units of `unit`, describes them all.
+/// (as the layer chooses), whose detail those voxels resolve, and that share their
+/// coefficients, so that one 8-bit density per voxel, in units of `unit`, describes
+/// them all.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct GridMedia {
     /// Per scene medium: its density is in the grid.
@@ -166,7 +189,7 @@ pub(crate) fn grid_media(scene: &Scene, voxel_m: f32) -> Option<GridMedia> {
     let in_grid: Vec<bool> = scene
         .media
         .iter()
-        .map(|m| fits_voxels(m, voxel_m))
+        .map(|m| fits_voxels(m, voxel_m) && resolves_detail(m, voxel_m))
         .collect();
     let ids: Vec<usize> = (0..scene.media.len()).filter(|&i| in_grid[i]).collect();
     if ids.is_empty() || !same_coefficients(scene, &ids) {
