@@ -57,8 +57,8 @@ struct Frame {
     sh_dims: vec3u,
     sh_probes: u32,
     // The media whose density the shared grid carries (FLAG_GRID_MEDIA): the box they
-    // fill, the density of one step of its 8-bit code, and the first of them (every one
-    // has its coefficients).
+    // fill, the density of one step of its 8-bit code (code c > 0 is (c − 1) steps; 0:
+    // not filled yet), and the first of them (every one has its coefficients).
     grid_media_min: vec3f,
     grid_media_unit: f32,
     grid_media_max: vec3f,
@@ -82,6 +82,7 @@ const FLAG_SH_AMBIENT: u32 = 8192u; // ambient light from the shared SH grid (el
 const FLAG_FROXEL_MAPS: u32 = 16384u; // shared: froxels read the maps of the lights that have one
 const FLAG_MAP_EDGES: u32 = 32768u; // shared: where the grid's voxels disagree, the map
 const FLAG_GRID_MEDIA: u32 = 65536u; // shared: the grid carries the costly media's density (grid_density)
+const FLAG_GRID_MEDIA_MOVES: u32 = 131072u; // grid_media: the media move (refill every needed voxel each frame)
 
 struct View {
     view_proj: mat4x4f,

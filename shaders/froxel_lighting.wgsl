@@ -70,7 +70,10 @@ fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
             if x1 / 4u != x0 / 4u {
                 d1 = grid_density[x1 / 4u + row];
             }
-            density += a * f32((d0 >> (8u * (x0 % 4u))) & 0xffu) + b * f32((d1 >> (8u * (x1 % 4u))) & 0xffu);
+            // Code c holds (c − 1) steps; every voxel read here was filled (requested).
+            let c0 = max(f32((d0 >> (8u * (x0 % 4u))) & 0xffu), 1.0) - 1.0;
+            let c1 = max(f32((d1 >> (8u * (x1 % 4u))) & 0xffu), 1.0) - 1.0;
+            density += a * c0 + b * c1;
         }
     }
     return GridVisibility(vis, false, density * frame.grid_media_unit);

@@ -12,9 +12,10 @@
 @group(1) @binding(2) var<storage, read> requests: array<u32>;
 @group(1) @binding(3) var<storage, read_write> valid: array<u32>;
 @group(1) @binding(4) var<storage, read> slot_brick: array<u32>;
-// FLAG_GRID_MEDIA: the grid's media density at each needed voxel's centre, 8 bits in
-// units of frame.grid_media_unit, in the grid's layout (4 voxels per word). Filled every
-// frame for the voxels needed (the noise moves with the wind), whatever their light bits.
+// FLAG_GRID_MEDIA: the grid's media density at each needed voxel's centre, an 8-bit
+// code per voxel in the grid's layout (4 voxels per word): 0 not filled yet, c > 0 a
+// density of (c − 1)·frame.grid_media_unit. Static media fill a needed voxel once;
+// moving ones (FLAG_GRID_MEDIA_MOVES) every frame it is needed, whatever its light bits.
 @group(1) @binding(5) var<storage, read_write> grid_density: array<u32>;
 
 // Summed density of the media the grid carries (in_layer with FLAG_GRID_MEDIA) at `p`,
@@ -26,7 +27,7 @@ fn density_code(p: vec3f) -> u32 {
             d += medium_density(media[i], p);
         }
     }
-    return u32(clamp(round(d / frame.grid_media_unit), 0.0, 255.0));
+    return 1u + u32(clamp(round(d / frame.grid_media_unit), 0.0, 254.0));
 }
 
 // Traces every light (with radiance) from the centre of voxel q; the light bitmask.
@@ -125,8 +126,13 @@ fn main(
             radius = 1.732 * frame.voxel_size;
         }
         let media = (frame.flags & FLAG_GRID_MEDIA) != 0u;
+        let refill = (frame.flags & FLAG_GRID_MEDIA_MOVES) != 0u;
         var codes = 0u;
         var coded = 0u;
+        var old_codes = 0u;
+        if media {
+            old_codes = grid_density[word_index];
+        }
         for (var i = 0u; i < 4u; i++) {
             let x = gid.x * 4u + i;
             if x >= dims.x || !(may_trace || media) {
@@ -148,7 +154,7 @@ fn main(
                 continue;
             }
             let shift = 8u * i;
-            if media {
+            if media && (refill || ((old_codes >> shift) & 0xffu) == 0u) {
                 let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
                 codes |= density_code(centre) << shift;
                 coded |= 0xffu << shift;
@@ -169,10 +175,7 @@ fn main(
             todo[atomicAdd(&todo_count, 1u)] = (lid << 2u) | i | (stale << 8u);
         }
         if coded != 0u {
-            if coded != 0xffffffffu {
-                codes |= grid_density[word_index] & ~coded;
-            }
-            grid_density[word_index] = codes;
+            grid_density[word_index] = codes | (old_codes & ~coded);
             filled = countOneBits(coded) / 8u;
         }
     }

@@ -24,6 +24,8 @@ pub(crate) const FLAG_FROXEL_MAPS: u32 = 16384;
 pub(crate) const FLAG_MAP_EDGES: u32 = 32768;
 /// `shared` with `grid_media`: the grid carries the costly media's density.
 pub(crate) const FLAG_GRID_MEDIA: u32 = 65536;
+/// With `FLAG_GRID_MEDIA`: the grid's media move, every needed voxel is refilled.
+pub(crate) const FLAG_GRID_MEDIA_MOVES: u32 = 131072;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 12;

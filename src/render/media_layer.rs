@@ -156,6 +156,15 @@ fn resolves_detail(m: &crate::scene::Medium, voxel_m: f32) -> bool {
     voxel_m <= 0.5 * scale
 }
 
+/// Whether some medium of `ids` moves (wind in its noise, a volume on a path).
+fn moves(scene: &Scene, ids: &[usize]) -> bool {
+    ids.iter().any(|&i| {
+        let m = &scene.media[i];
+        (m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
+            || m.volume.is_some_and(|v| v.velocity != Vec3::ZERO)
+    })
+}
+
 /// Whether media `ids` share σs, σa, g and emission (then one density describes them).
 fn same_coefficients(scene: &Scene, ids: &[usize]) -> bool {
     let key = |i: usize| {
@@ -179,8 +188,12 @@ pub(crate) struct GridMedia {
     /// The box that holds them (over their whole paths): froxels inside read the grid.
     pub min: Vec3,
     pub max: Vec3,
-    /// Density of one step of the 8-bit code: the largest summed density / 255.
+    /// Density of one step of the 8-bit code: the largest summed density / 254 (code
+    /// 0 marks a voxel not filled yet, 1..=255 hold densities 0..=254 steps).
     pub unit: f32,
+    /// Whether one of them moves: then every needed voxel is refilled every frame;
+    /// static media fill each voxel once, the first frame it is needed.
+    pub animated: bool,
 }
 
 /// [`GridMedia`] for `scene` on a grid of `voxel_m` voxels, or `None` when no medium
@@ -212,11 +225,12 @@ pub(crate) fn grid_media(scene: &Scene, voxel_m: f32) -> Option<GridMedia> {
         })
         .sum();
     Some(GridMedia {
-        in_grid,
         first: ids[0] as u32,
         min,
         max,
-        unit: largest / 255.0,
+        unit: largest / 254.0,
+        animated: moves(scene, &ids),
+        in_grid,
     })
 }
 
@@ -280,11 +294,7 @@ pub(crate) fn plan(scene: &Scene, voxel_m: f32) -> Option<LayerPlan> {
     let full = !same_coefficients(scene, &ids);
     let brick_bytes = BRICK_NODES * if full { 16 } else { 4 };
     let max_capacity = covered.min(MAX_POOL_BYTES / brick_bytes).max(1) as u32;
-    let animated = ids.iter().any(|&i| {
-        let m = &scene.media[i];
-        (m.noise.frequency > 0.0 && Vec3::from(m.noise.wind) != Vec3::ZERO)
-            || m.volume.is_some_and(|v| v.velocity != Vec3::ZERO)
-    });
+    let animated = moves(scene, &ids);
     Some(LayerPlan {
         min: lo,
         voxel_m: voxel,

@@ -262,8 +262,11 @@ impl World {
         }
         if let Some(g) = &self.grid {
             flags |= g.update().flags();
-            if g.media.is_some() {
+            if let Some(m) = &g.media {
                 flags |= FLAG_GRID_MEDIA;
+                if m.animated {
+                    flags |= FLAG_GRID_MEDIA_MOVES;
+                }
             }
         }
         if self.transmittance.in_use() {
