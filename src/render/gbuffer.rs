@@ -2,7 +2,7 @@
 
 use super::{scene_gpu::SceneGpu, Stage, Timestamps, ViewerSet};
 use crate::gpu::GpuContext;
-use crate::scene::Camera;
+use crate::scene::{Camera, Cull};
 use glam::{Mat4, Vec3};
 
 const VIEW_STRIDE: u64 = 256;
@@ -63,9 +63,11 @@ pub(crate) fn dynamic_uniform_layout(
         })
 }
 
-/// The raster pipeline and its per-viewer uniforms.
+/// The raster pipelines and their per-viewer uniforms.
 pub(crate) struct GBuffer {
-    pipeline: wgpu::RenderPipeline,
+    /// One per `Cull`: both sides, without back faces, without front faces (counter-
+    /// clockwise on screen is the front, as in glTF).
+    pipelines: [wgpu::RenderPipeline; 3],
     layout: wgpu::BindGroupLayout,
     uniforms: wgpu::Buffer,
     capacity: usize,
@@ -97,23 +99,25 @@ fn box_outside(view_proj: &Mat4, lo: Vec3, hi: Vec3) -> bool {
     outside.iter().any(|o| *o)
 }
 
-/// Index ranges to draw for one viewer: the clusters inside its frustum (neighbours
-/// merged into one draw) and the movers. (Drawing the clusters nearest first did not
-/// speed lavapipe up: its G-buffer cost is in the triangles, not the fragments.)
-fn visible_ranges(scene: &SceneGpu, view: &RasterView) -> Vec<std::ops::Range<u32>> {
+/// Index ranges to draw for one viewer, each with the side it culls: the clusters
+/// inside its frustum (neighbours of one cull merged into one draw) and the movers
+/// (both sides). (Drawing the clusters nearest first did not speed lavapipe up: its
+/// G-buffer cost is in the triangles, not the fragments.)
+fn visible_ranges(scene: &SceneGpu, view: &RasterView) -> Vec<(Cull, std::ops::Range<u32>)> {
     let vp = Mat4::from_cols_array_2d(&view.view_proj);
     let static_end = scene.clusters.last().map_or(0, |c| c.indices.end);
-    let movers = (static_end < scene.index_count).then_some(static_end..scene.index_count);
-    let mut ranges: Vec<std::ops::Range<u32>> = Vec::new();
+    let movers =
+        (static_end < scene.index_count).then_some((Cull::None, static_end..scene.index_count));
+    let mut ranges: Vec<(Cull, std::ops::Range<u32>)> = Vec::new();
     let visible = scene
         .clusters
         .iter()
         .filter(|c| !box_outside(&vp, c.min, c.max))
-        .map(|c| c.indices.clone());
-    for r in visible.chain(movers) {
+        .map(|c| (c.cull, c.indices.clone()));
+    for (cull, r) in visible.chain(movers) {
         match ranges.last_mut() {
-            Some(last) if last.end == r.start => last.end = r.end,
-            _ => ranges.push(r),
+            Some((c, last)) if *c == cull && last.end == r.start => last.end = r.end,
+            _ => ranges.push((cull, r)),
         }
     }
     ranges
@@ -142,42 +146,47 @@ impl GBuffer {
                 write_mask: wgpu::ColorWrites::ALL,
             })
         };
-        let pipeline = ctx
-            .device
-            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("gbuffer"),
-                layout: Some(&pl),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vs_main"),
-                    compilation_options: Default::default(),
-                    buffers: &[Some(wgpu::VertexBufferLayout {
-                        array_stride: 16,
-                        step_mode: wgpu::VertexStepMode::Vertex,
-                        attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32],
-                    })],
-                },
-                primitive: wgpu::PrimitiveState {
-                    cull_mode: None,
-                    ..Default::default()
-                },
-                depth_stencil: Some(depth_test()),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs_main"),
-                    compilation_options: Default::default(),
-                    targets: &[
-                        target(wgpu::TextureFormat::Rgba32Float),
-                        target(wgpu::TextureFormat::Rgba16Float),
-                        target(wgpu::TextureFormat::Rgba8Unorm),
-                    ],
-                }),
-                multiview_mask: None,
-                cache: None,
-            });
+        let pipeline = |cull_mode| {
+            ctx.device
+                .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                    label: Some("gbuffer"),
+                    layout: Some(&pl),
+                    vertex: wgpu::VertexState {
+                        module: &module,
+                        entry_point: Some("vs_main"),
+                        compilation_options: Default::default(),
+                        buffers: &[Some(wgpu::VertexBufferLayout {
+                            array_stride: 16,
+                            step_mode: wgpu::VertexStepMode::Vertex,
+                            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32],
+                        })],
+                    },
+                    primitive: wgpu::PrimitiveState {
+                        cull_mode,
+                        ..Default::default()
+                    },
+                    depth_stencil: Some(depth_test()),
+                    multisample: Default::default(),
+                    fragment: Some(wgpu::FragmentState {
+                        module: &module,
+                        entry_point: Some("fs_main"),
+                        compilation_options: Default::default(),
+                        targets: &[
+                            target(wgpu::TextureFormat::Rgba32Float),
+                            target(wgpu::TextureFormat::Rgba16Float),
+                            target(wgpu::TextureFormat::Rgba8Unorm),
+                        ],
+                    }),
+                    multiview_mask: None,
+                    cache: None,
+                })
+        };
         GBuffer {
-            pipeline,
+            pipelines: [
+                pipeline(None),
+                pipeline(Some(wgpu::Face::Back)),
+                pipeline(Some(wgpu::Face::Front)),
+            ],
             layout,
             uniforms: Self::uniform_buffer(ctx, 16),
             capacity: 16,
@@ -284,11 +293,15 @@ impl GBuffer {
             if scene.index_count == 0 {
                 continue;
             }
-            pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &bg, &[(first as u32 + i) * VIEW_STRIDE as u32]);
             pass.set_vertex_buffer(0, scene.vertices.slice(..));
             pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
-            for range in visible_ranges(scene, &views[i as usize]) {
+            let mut bound = None;
+            for (cull, range) in visible_ranges(scene, &views[i as usize]) {
+                if bound != Some(cull) {
+                    pass.set_pipeline(&self.pipelines[cull as usize]);
+                    bound = Some(cull);
+                }
                 pass.draw_indexed(range, 0, 0..1);
             }
         }

@@ -7,7 +7,7 @@ use super::gpu_types::{
 use super::media_layer::{LayerBuffers, LayerPlan};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
-use crate::scene::{Bvh, GpuBvhNode, GpuTriangle, Scene, TriangleMesh};
+use crate::scene::{Bvh, Cull, GpuBvhNode, GpuTriangle, Scene, TriangleMesh};
 use glam::Vec3;
 
 /// `Frame.mover_root` when the scene has no movers.
@@ -33,10 +33,13 @@ pub(crate) struct RasterCluster {
     pub indices: std::ops::Range<u32>,
     pub min: Vec3,
     pub max: Vec3,
+    /// The side of its triangles the camera does not see (one per cluster).
+    pub cull: Cull,
 }
 
-/// The static triangles in Morton order of their centroids, cut into clusters of
-/// `CLUSTER_TRIANGLES`; returns the reordered triangles and the clusters.
+/// The static triangles by their `cull` and then in Morton order of their centroids,
+/// cut into clusters of `CLUSTER_TRIANGLES` (each of one `cull`); returns the reordered
+/// triangles and the clusters.
 fn cluster_triangles(mesh: &TriangleMesh) -> (Vec<[u32; 3]>, Vec<RasterCluster>) {
     let centroid = |t: &[u32; 3]| {
         (mesh.positions[t[0] as usize]
@@ -57,20 +60,33 @@ fn cluster_triangles(mesh: &TriangleMesh) -> (Vec<[u32; 3]>, Vec<RasterCluster>)
         x = (x | (x << 4)) & 0x030c30c3;
         (x | (x << 2)) & 0x09249249
     };
-    let mut order: Vec<(u32, [u32; 3])> = mesh
+    let mut order: Vec<(Cull, u32, [u32; 3])> = mesh
         .indices
         .iter()
-        .map(|t| {
+        .enumerate()
+        .map(|(i, t)| {
             let q = ((centroid(t) - lo) * scale).round().as_uvec3();
-            (spread(q.x) | spread(q.y) << 1 | spread(q.z) << 2, *t)
+            let code = spread(q.x) | spread(q.y) << 1 | spread(q.z) << 2;
+            (mesh.cull_of(i), code, *t)
         })
         .collect();
-    order.sort_by_key(|(code, _)| *code);
-    let tris: Vec<[u32; 3]> = order.into_iter().map(|(_, t)| t).collect();
-    let clusters = tris
-        .chunks(CLUSTER_TRIANGLES)
-        .enumerate()
-        .map(|(i, chunk)| {
+    order.sort_by_key(|(cull, code, _)| (*cull as u8, *code));
+    // Where each cull's run of triangles starts, and its chunks.
+    let mut chunks: Vec<(Cull, std::ops::Range<usize>)> = Vec::new();
+    let mut start = 0;
+    for end in 1..=order.len() {
+        if end == order.len() || order[end].0 != order[start].0 {
+            for s in (start..end).step_by(CLUSTER_TRIANGLES) {
+                chunks.push((order[start].0, s..(s + CLUSTER_TRIANGLES).min(end)));
+            }
+            start = end;
+        }
+    }
+    let tris: Vec<[u32; 3]> = order.into_iter().map(|(_, _, t)| t).collect();
+    let clusters = chunks
+        .into_iter()
+        .map(|(cull, range)| {
+            let chunk = &tris[range.clone()];
             let (min, max) = chunk.iter().flatten().fold(
                 (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
                 |(lo, hi), v| {
@@ -78,11 +94,11 @@ fn cluster_triangles(mesh: &TriangleMesh) -> (Vec<[u32; 3]>, Vec<RasterCluster>)
                     (lo.min(p), hi.max(p))
                 },
             );
-            let start = (i * CLUSTER_TRIANGLES * 3) as u32;
             RasterCluster {
-                indices: start..start + chunk.len() as u32 * 3,
+                indices: range.start as u32 * 3..range.end as u32 * 3,
                 min,
                 max,
+                cull,
             }
         })
         .collect();

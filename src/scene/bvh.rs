@@ -1,7 +1,7 @@
 //! Shadow-ray geometry: a BVH built on the CPU with `obvhs` (PLOC + reinsertion),
 //! flattened into the buffers `shaders/bvh.wgsl` traverses with any-hit termination.
 
-use super::TriangleMesh;
+use super::{Cull, TriangleMesh};
 use glam::{Vec3, Vec3A};
 use obvhs::{bvh2::builder::build_bvh2_from_tris, triangle::Triangle, BvhBuildParams};
 
@@ -53,6 +53,8 @@ pub struct Ray {
 pub struct Bvh {
     tree: obvhs::bvh2::Bvh2,
     triangles: Vec<[Vec3; 3]>,
+    /// The side of each triangle (input order) camera rays do not see.
+    cull: Vec<Cull>,
     /// Flattened nodes (at least one, so GPU buffers are never empty).
     pub gpu_nodes: Vec<GpuBvhNode>,
     /// Triangles in leaf order (at least one).
@@ -75,10 +77,12 @@ impl Bvh {
     /// Builds the tree over every triangle of `mesh`.
     pub fn build(mesh: &TriangleMesh) -> anyhow::Result<Bvh> {
         let triangles: Vec<[Vec3; 3]> = (0..mesh.len()).map(|i| mesh.triangle(i)).collect();
+        let cull = (0..mesh.len()).map(|i| mesh.cull_of(i)).collect();
         if triangles.is_empty() {
             return Ok(Bvh {
                 tree: obvhs::bvh2::Bvh2::default(),
                 triangles,
+                cull,
                 gpu_nodes: vec![GpuBvhNode {
                     min: [1.0; 3],
                     max: [-1.0; 3],
@@ -137,6 +141,7 @@ impl Bvh {
         Ok(Bvh {
             tree,
             triangles,
+            cull,
             gpu_nodes,
             gpu_triangles,
             depth,
@@ -170,7 +175,22 @@ impl Bvh {
     }
 
     /// Closest hit with `obvhs`' traversal: (distance, index of the triangle in the mesh).
+    /// Both sides of every triangle: what light and shadow rays meet.
     pub fn closest_hit(&self, ray: &Ray) -> Option<(f32, usize)> {
+        self.closest_hit_but(ray, |_| false)
+    }
+
+    /// The closest hit a camera ray sees: as `closest_hit`, through the culled side of
+    /// a triangle (the mesh's `cull`), as the G-buffer raster does.
+    pub fn closest_camera_hit(&self, ray: &Ray) -> Option<(f32, usize)> {
+        self.closest_hit_but(ray, |id| {
+            let [a, b, c] = self.triangles[id];
+            self.cull[id].hides((b - a).cross(c - a), ray.dir)
+        })
+    }
+
+    /// The closest hit among the triangles `skip` does not reject.
+    fn closest_hit_but(&self, ray: &Ray, skip: impl Fn(usize) -> bool) -> Option<(f32, usize)> {
         if self.triangles.is_empty() {
             return None;
         }
@@ -183,6 +203,9 @@ impl Bvh {
         let mut hit = obvhs::ray::RayHit::none();
         let found = self.tree.ray_traverse(r, &mut hit, |r, prim| {
             let id = self.tree.primitive_indices[prim] as usize;
+            if skip(id) {
+                return f32::INFINITY;
+            }
             let seg = Ray {
                 origin: ray.origin,
                 dir: ray.dir,

@@ -63,6 +63,46 @@ impl Default for RenderDefaults {
     }
 }
 
+/// Which side of a mesh's triangles the camera does not see (a mesh's `cull`). Only
+/// camera rays skip it: light and shadow rays meet both sides, so a one-sided wall still
+/// casts its shadow (the engines' two-sided shadows). The G-buffer culls those faces and
+/// `truth`'s camera rays pass through them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Cull {
+    /// Both sides are seen (the default).
+    #[default]
+    None,
+    /// The side from which a triangle's corners run clockwise: glTF's back faces, the
+    /// inside of a built-in box or cylinder.
+    Back,
+    /// The side from which they run counter-clockwise: for a file whose winding is the
+    /// reverse of glTF's.
+    Front,
+}
+
+impl Cull {
+    /// The cull a scene file names (`none`, `back`, `front`).
+    pub fn parse(name: &str) -> Option<Cull> {
+        match name {
+            "none" => Some(Cull::None),
+            "back" => Some(Cull::Back),
+            "front" => Some(Cull::Front),
+            _ => None,
+        }
+    }
+
+    /// Whether a camera ray along `dir` meets the culled side of a triangle whose
+    /// normal, by the right-hand rule over its corners, is `n` (grazing: seen).
+    pub fn hides(self, n: glam::Vec3, dir: glam::Vec3) -> bool {
+        match self {
+            Cull::None => false,
+            Cull::Back => n.dot(dir) > 0.0,
+            Cull::Front => n.dot(dir) < 0.0,
+        }
+    }
+}
+
 /// A mesh source: a glTF file or a built-in primitive.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -80,6 +120,9 @@ pub enum MeshDesc {
         /// Diffuse albedo.
         #[serde(default = "grey")]
         albedo: [f32; 3],
+        /// The side the camera does not see: `none`, `back` or `front` (`Cull`).
+        #[serde(default = "no_cull")]
+        cull: String,
     },
     /// Axis-aligned box.
     Box {
@@ -90,6 +133,9 @@ pub enum MeshDesc {
         /// Diffuse albedo.
         #[serde(default = "grey")]
         albedo: [f32; 3],
+        /// The side the camera does not see: `none`, `back` or `front` (`Cull`).
+        #[serde(default = "no_cull")]
+        cull: String,
     },
     /// Vertical cylinder (a pillar), capped.
     Cylinder {
@@ -105,9 +151,15 @@ pub enum MeshDesc {
         /// Diffuse albedo.
         #[serde(default = "grey")]
         albedo: [f32; 3],
+        /// The side the camera does not see: `none`, `back` or `front` (`Cull`).
+        #[serde(default = "no_cull")]
+        cull: String,
     },
 }
 
+fn no_cull() -> String {
+    "none".into()
+}
 fn one() -> f32 {
     1.0
 }

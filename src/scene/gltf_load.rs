@@ -125,6 +125,8 @@ pub(crate) fn default_desc_for(path: &Path) -> Result<SceneDesc, SceneError> {
             translate: [0.0; 3],
             scale: 1.0,
             albedo: [0.7, 0.65, 0.55],
+            // A bare file's winding is not known: both sides are seen.
+            cull: "none".into(),
         }],
         lights: vec![LightDesc::Directional {
             swing: None,

@@ -1,6 +1,6 @@
 //! Triangle meshes: built-in primitives and glTF, gathered into one list.
 
-use super::{gltf_load, invalid, MeshDesc, SceneError};
+use super::{gltf_load, invalid, Cull, MeshDesc, SceneError};
 use glam::{DVec3, Vec3};
 use std::path::Path;
 
@@ -13,9 +13,27 @@ pub struct TriangleMesh {
     pub albedo: Vec<u32>,
     /// Triangle vertex indices.
     pub indices: Vec<[u32; 3]>,
+    /// The side of each triangle the camera does not see; shorter than `indices` (empty,
+    /// say) where the rest see both sides.
+    pub cull: Vec<Cull>,
 }
 
 impl TriangleMesh {
+    /// The side of triangle `i` the camera does not see.
+    pub fn cull_of(&self, i: usize) -> Cull {
+        self.cull.get(i).copied().unwrap_or_default()
+    }
+
+    /// Whether a camera ray along `dir` meets the culled side of triangle `i`.
+    pub fn hides(&self, i: usize, dir: Vec3) -> bool {
+        let cull = self.cull_of(i);
+        if cull == Cull::None {
+            return false;
+        }
+        let [a, b, c] = self.triangle(i);
+        cull.hides((b - a).cross(c - a), dir)
+    }
+
     /// The three corners of triangle `i`.
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
         let [a, b, c] = self.indices[i];
@@ -41,6 +59,12 @@ impl TriangleMesh {
         let base = self.positions.len() as u32;
         self.positions.extend(&other.positions);
         self.albedo.extend(&other.albedo);
+        if !other.cull.is_empty() || !self.cull.is_empty() {
+            self.cull.resize(self.indices.len(), Cull::None);
+            self.cull.extend(&other.cull);
+            self.cull
+                .resize(self.indices.len() + other.indices.len(), Cull::None);
+        }
         self.indices
             .extend(other.indices.iter().map(|t| t.map(|i| i + base)));
     }
@@ -52,6 +76,8 @@ pub(crate) struct WorldMesh {
     pub world_positions: Vec<DVec3>,
     pub albedo: Vec<u32>,
     pub indices: Vec<[u32; 3]>,
+    /// Per triangle, as `TriangleMesh::cull`.
+    pub cull: Vec<Cull>,
 }
 
 pub(crate) fn pack_albedo(c: [f32; 3]) -> u32 {
@@ -61,7 +87,13 @@ pub(crate) fn pack_albedo(c: [f32; 3]) -> u32 {
 
 impl WorldMesh {
     /// Appends triangles; zero-area triangles are dropped (they can never occlude).
-    pub(crate) fn push(&mut self, positions: &[DVec3], indices: &[[u32; 3]], albedo: [f32; 3]) {
+    pub(crate) fn push(
+        &mut self,
+        positions: &[DVec3],
+        indices: &[[u32; 3]],
+        albedo: [f32; 3],
+        cull: Cull,
+    ) {
         let base = self.world_positions.len() as u32;
         self.world_positions.extend_from_slice(positions);
         self.albedo
@@ -70,6 +102,7 @@ impl WorldMesh {
             let [a, b, c] = t.map(|i| positions[i as usize]);
             if (b - a).cross(c - a).length_squared() > 0.0 {
                 self.indices.push(t.map(|i| i + base));
+                self.cull.push(cull);
             }
         }
     }
@@ -83,6 +116,7 @@ impl WorldMesh {
                 .collect(),
             albedo: self.albedo,
             indices: self.indices,
+            cull: self.cull,
         }
     }
 }
@@ -107,12 +141,18 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
     let mut out = WorldMesh::default();
     for (i, d) in descs.iter().enumerate() {
         let f = |name: &str| format!("mesh[{i}].{name}");
+        let (MeshDesc::Gltf { cull, .. }
+        | MeshDesc::Box { cull, .. }
+        | MeshDesc::Cylinder { cull, .. }) = d;
+        let cull = Cull::parse(cull)
+            .ok_or_else(|| invalid(f("cull"), cull, "must be \"none\", \"back\" or \"front\""))?;
         match d {
             MeshDesc::Gltf {
                 path,
                 translate,
                 scale,
                 albedo,
+                ..
             } => {
                 check_albedo(f("albedo"), *albedo)?;
                 check_point(f("translate"), *translate)?;
@@ -137,9 +177,11 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
                     .iter()
                     .map(|p| p.as_dvec3() * *scale as f64 + t)
                     .collect();
-                out.push(&moved, &idx, *albedo);
+                out.push(&moved, &idx, *albedo, cull);
             }
-            MeshDesc::Box { min, max, albedo } => {
+            MeshDesc::Box {
+                min, max, albedo, ..
+            } => {
                 check_albedo(f("albedo"), *albedo)?;
                 check_point(f("min"), *min)?;
                 check_point(f("max"), *max)?;
@@ -152,7 +194,7 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
                 }
                 let (p, t) =
                     box_triangles(Vec3::from(*min).as_dvec3(), Vec3::from(*max).as_dvec3());
-                out.push(&p, &t, *albedo);
+                out.push(&p, &t, *albedo, cull);
             }
             MeshDesc::Cylinder {
                 base,
@@ -160,6 +202,7 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
                 height,
                 segments,
                 albedo,
+                ..
             } => {
                 check_albedo(f("albedo"), *albedo)?;
                 check_point(f("base"), *base)?;
@@ -182,7 +225,7 @@ pub(crate) fn build_meshes(descs: &[MeshDesc], base_dir: &Path) -> Result<WorldM
                     *height as f64,
                     *segments,
                 );
-                out.push(&p, &t, *albedo);
+                out.push(&p, &t, *albedo, cull);
             }
         }
     }

@@ -28,8 +28,8 @@ pub use bvh::{intersect_triangle, Bvh, GpuBvhNode, GpuTriangle, Ray, MAX_BVH_DEP
 pub use camera::{Camera, CameraPath};
 pub use error::SceneError;
 pub use format::{
-    Displacement, EmitterDesc, EmitterShape, LightDesc, MediumDesc, MediumKind, MeshDesc, Noise,
-    RenderDefaults, SceneDesc, SwingDesc, VolumeDesc, VolumeMotion,
+    Cull, Displacement, EmitterDesc, EmitterShape, LightDesc, MediumDesc, MediumKind, MeshDesc,
+    Noise, RenderDefaults, SceneDesc, SwingDesc, VolumeDesc, VolumeMotion,
 };
 pub use load::load_camera_path;
 pub use media::{density_at, hg_phase, sample_media, MediumSample, VOLUME_EDGE_FRACTION};

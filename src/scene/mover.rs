@@ -94,6 +94,7 @@ impl Mover {
                 positions: corners.iter().map(|p| to_render(*p)).collect(),
                 albedo: vec![pack_albedo(d.albedo); corners.len()],
                 indices: tris,
+                cull: Vec::new(),
             },
             pivot: to_render(Vec3::from(d.pivot).as_dvec3()),
             axis,

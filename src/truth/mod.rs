@@ -720,7 +720,8 @@ impl PixelContext<'_> {
         let cos = dir.dot(cam.forward).max(1e-6);
         let t_near = r.near_m / cos;
         let t_far = r.far_m / cos;
-        let hit = self.bvh.closest_hit(&Ray {
+        // A camera ray passes through the side of a surface the scene culls.
+        let hit = self.bvh.closest_camera_hit(&Ray {
             origin: cam.position,
             dir,
             t_min: t_near,

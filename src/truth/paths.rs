@@ -188,12 +188,19 @@ impl PixelContext<'_> {
         let mut radiance = DVec3::ZERO;
         let mut scatterings = 0;
         loop {
-            let hit = self.bvh.closest_hit(&Ray {
+            let ray = Ray {
                 origin: o.as_vec3(),
                 dir: d.as_vec3(),
                 t_min: t_min as f32,
                 t_max: t_max as f32,
-            });
+            };
+            // The segment from the eye is a camera ray (it passes the culled side of a
+            // surface); after a scattering, light meets both sides.
+            let hit = if scatterings == 0 {
+                self.bvh.closest_camera_hit(&ray)
+            } else {
+                self.bvh.closest_hit(&ray)
+            };
             let t_end = hit.map_or(t_max, |(t, _)| f64::from(t));
             let start = o + d * t_min;
             let target = -(1.0 - rng.unit()).ln();
