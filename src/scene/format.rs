@@ -67,8 +67,7 @@ impl Default for RenderDefaults {
 /// camera rays skip it: light and shadow rays meet both sides, so a one-sided wall still
 /// casts its shadow (the engines' two-sided shadows). The G-buffer culls those faces and
 /// `truth`'s camera rays pass through them.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum Cull {
     /// Both sides are seen (the default).
     #[default]

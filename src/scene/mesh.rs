@@ -24,16 +24,6 @@ impl TriangleMesh {
         self.cull.get(i).copied().unwrap_or_default()
     }
 
-    /// Whether a camera ray along `dir` meets the culled side of triangle `i`.
-    pub fn hides(&self, i: usize, dir: Vec3) -> bool {
-        let cull = self.cull_of(i);
-        if cull == Cull::None {
-            return false;
-        }
-        let [a, b, c] = self.triangle(i);
-        cull.hides((b - a).cross(c - a), dir)
-    }
-
     /// The three corners of triangle `i`.
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
         let [a, b, c] = self.indices[i];
