@@ -520,4 +520,36 @@ mod tests {
         }
         assert_eq!(next as usize, tris.len() * 3);
     }
+
+    #[test]
+    fn a_cluster_holds_triangles_of_one_cull() {
+        // 3000 small triangles along x, every third one-sided: the clusters split by
+        // cull first, so no cluster mixes two, and every triangle is kept with its own.
+        let mut mesh = TriangleMesh::default();
+        for i in 0..3000u32 {
+            let x = i as f32 * 0.01;
+            mesh.positions.extend([
+                Vec3::new(x, 0.0, 0.0),
+                Vec3::new(x + 0.01, 0.0, 0.0),
+                Vec3::new(x, 0.01, 0.0),
+            ]);
+            mesh.albedo.extend([0; 3]);
+            mesh.indices.push([3 * i, 3 * i + 1, 3 * i + 2]);
+            mesh.cull
+                .push(if i % 3 == 0 { Cull::Back } else { Cull::None });
+        }
+        let (tris, clusters) = cluster_triangles(&mesh);
+        assert_eq!(tris.len(), 3000);
+        let mut back = 0;
+        for c in &clusters {
+            for t in &tris[c.indices.start as usize / 3..c.indices.end as usize / 3] {
+                let cull = mesh.cull_of(t[0] as usize / 3);
+                assert_eq!(cull, c.cull, "a cluster of one cull");
+                back += usize::from(cull == Cull::Back);
+            }
+        }
+        assert_eq!(back, 1000);
+        // 2000 both-sided in 2 clusters, 1000 one-sided in 1.
+        assert_eq!(clusters.len(), 3);
+    }
 }
