@@ -108,6 +108,23 @@ struct View {
     history_base: u32,  // this viewer's froxels in last frame's volume; NO_HISTORY: none
     volume_view: u32,   // the slot whose froxels this view integrates beyond its own slices (coupled stereo)
     light_slices: u32,  // slices it lights itself: all, a coupled eye's near field, or 0
+    origin: vec3f,      // where its froxel volume is lit from: its eye, or a stereo head's midpoint
+    _pad_origin: u32,
+}
+
+// The view whose froxels view `v`'s slot holds: `v` itself, or, for the first eye of a
+// stereo head (`stereo_head`), the same view from the midpoint between the eyes. The
+// froxel stages light and read the volume through it; the eye's own rays (integration,
+// composite) start at `v.position`.
+fn volume_of(v: View) -> View {
+    var o = v;
+    o.position = v.origin;
+    return o;
+}
+
+// Whether view `v`'s own froxel columns lie on its own rays (not a stereo head's volume).
+fn volume_on_own_rays(v: View) -> bool {
+    return all(v.origin == v.position);
 }
 
 const NO_HISTORY: u32 = 0xffffffffu;

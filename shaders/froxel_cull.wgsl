@@ -44,7 +44,8 @@ fn column_limit_pass(@builtin(global_invocation_id) gid: vec3u) {
     }
     var far = 0.0;
     // Froxels that a coupled stereo eye integrates too (its volume_view is this view)
-    // are lit for what either eye's tiles show. Beyond its near field the eyes' disparity
+    // are lit for what either eye's tiles show (and a stereo head's volume, lit from
+    // between the eyes, for what both eyes' tiles show, each as a coupled eye's). Beyond its near field the eyes' disparity
     // is under a froxel (stereo_near_px), so the coupled eye's column reads this view's
     // columns ±1 and needs the depth of its own 3 × 3 tiles: its tiles ±2 cover that
     // (viewer_set.rs, `stereo_pairs`).
@@ -52,7 +53,7 @@ fn column_limit_pass(@builtin(global_invocation_id) gid: vec3u) {
         if w != gid.z && views[w].volume_view != gid.z {
             continue;
         }
-        let reach = select(1, 2, w != gid.z);
+        let reach = select(1, 2, w != gid.z || !volume_on_own_rays(views[w]));
         let lo = max(vec2i(gid.xy) - reach, vec2i(0));
         let hi = min(vec2i(gid.xy) + reach, vec2i(v.froxel_dims) - 1);
         for (var y = lo.y; y <= hi.y; y++) {

@@ -266,7 +266,7 @@ fn main(
     let gid = column_slot(invocation, wg, n);
     let view_index = gid.z;
     if view_index < frame.view_count {
-        let v = views[view_index];
+        let v = volume_of(views[view_index]);
         // A coupled stereo eye lights its near field only, or nothing (v.light_slices).
         if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y && v.light_slices > 0u {
             // Slices behind every surface this column shows never reach the image.

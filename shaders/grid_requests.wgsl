@@ -74,7 +74,7 @@ fn request_column(gid: vec3u) {
     if gid.z >= frame.view_count {
         return;
     }
-    let v = views[gid.z];
+    let v = volume_of(views[gid.z]);
     // A coupled stereo eye lights its near field only, or nothing (v.light_slices).
     if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y || v.light_slices == 0u {
         return;

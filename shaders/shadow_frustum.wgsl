@@ -19,7 +19,7 @@ fn main(
     let gid = column_slot(invocation, wg, n);
     let view_index = gid.z;
     if view_index < frame.view_count {
-        let v = views[view_index];
+        let v = volume_of(views[view_index]);
         // A coupled stereo eye lights its near field only, or nothing (v.light_slices).
         if gid.x < v.frustum_dims.x && gid.y < v.frustum_dims.y && v.light_slices > 0u {
             let pix = (vec2f(gid.xy) + 0.5) * f32(v.frustum_px);

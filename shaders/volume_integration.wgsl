@@ -47,9 +47,14 @@ fn partner_froxel(o: View, p: vec3f, s: u32) -> vec4f {
     var scattering = vec3f(0.0);
     var sigma_t = 0.0;
     for (var k = 0u; k < 4u; k++) {
+        let w = column_weight(cols, k);
+        // A stereo pair's eyes lie on one row: its rows' weights are 0 and 1, so only
+        // two of the four columns are read.
+        if w == 0.0 {
+            continue;
+        }
         let c = column_corner(cols, k);
         let f = unpack_rgba16(froxels[slice + c.x + o.froxel_dims.x * c.y]);
-        let w = column_weight(cols, k);
         scattering += w * f.rgb * max(f.w, SIGMA_EPS);
         sigma_t += w * f.w;
     }
@@ -75,7 +80,9 @@ fn main(
     if gid.x >= v.froxel_dims.x || gid.y >= v.froxel_dims.y {
         return;
     }
-    let o = views[v.volume_view];
+    let o = volume_of(views[v.volume_view]);
+    // A stereo head's first eye lit the head's volume: it reads it as its partner would.
+    let own = select(0u, v.light_slices, volume_on_own_rays(v));
     let dir = froxel_ray(v, gid.xy);
     let inv_cos = 1.0 / dot(dir, v.forward);
     var scattered = vec3f(0.0);
@@ -87,7 +94,7 @@ fn main(
         let d = (z1 - z0) * inv_cos;
         z0 = z1;
         var f: vec4f;
-        if s < v.light_slices {
+        if s < own {
             f = unpack_rgba16(froxels[index]);
         } else {
             f = partner_froxel(o, froxel_point(v, dir, s), s);

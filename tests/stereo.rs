@@ -5,7 +5,8 @@
 //! world points. Each eye must stay within mean FLIP 0.02 of rendering that eye alone,
 //! with far fewer froxels lit than two eyes light. Eye distance 0 shares fully (both eyes
 //! identical); a wide pair (1 m) falls back to two volumes and is exactly two eyes
-//! rendered alone; a 1×1 eye still renders.
+//! rendered alone; a 1×1 eye still renders. With `stereo_head` the volume is lit from
+//! between the eyes instead, and both eyes read it along their own rays.
 
 mod gpu_support;
 
@@ -151,18 +152,98 @@ fn coupled_eyes_light_one_volume_within_flip_0_02_of_each_eye_alone() {
     assert!(coupled[1] != coupled[0]);
 }
 
+/// `stereo_head`: the volume is lit once, from the point between the eyes, and both eyes
+/// read it along their own rays (no near field). Each eye reads froxels lit half an eye
+/// distance away, so both stay within the bound, and the session lights about one eye's
+/// froxels.
+#[test]
+fn a_head_volume_between_the_eyes_is_lit_once_and_both_eyes_stay_within_flip_0_02() {
+    let scene = colonnade();
+    const SIZE: (u32, u32) = (320, 180);
+    let settings = Settings {
+        stereo_head: true,
+        ..Settings::default()
+    };
+    let eye_m = 0.064;
+    let (eyes, c) = stereo(&scene, settings, eye_m, SIZE);
+    let [(left, l), (right, r)] = alone(&scene, settings, eye_m, SIZE);
+    let lit = |o: &FrameOutput| o.stats.froxels_with_media as f64;
+    let errors = [flip(&left, &eyes[0], SIZE), flip(&right, &eyes[1], SIZE)];
+    println!(
+        "head volume: froxels lit {} (eyes alone {} + {}); FLIP against each eye alone: \
+         {errors:?}",
+        lit(&c),
+        lit(&l),
+        lit(&r)
+    );
+    let lighting = c
+        .stats
+        .dispatches
+        .iter()
+        .find(|(n, _)| n == "froxel_lighting")
+        .map(|(_, g)| g[2]);
+    assert_eq!(
+        lighting,
+        Some(1),
+        "one volume is lit, in the first eye's slot"
+    );
+    // The head's volume, culled for what both eyes' tiles show: about one eye's.
+    assert!(
+        lit(&c) <= 1.05 * lit(&l).max(lit(&r)),
+        "head volume lit {} froxels, an eye alone {} and {}",
+        lit(&c),
+        lit(&l),
+        lit(&r)
+    );
+    for (i, e) in errors.iter().enumerate() {
+        assert!(*e <= 0.02, "eye {i}: FLIP {e} against alone");
+    }
+    // Neither eye reads its own volume any more, and each keeps its own parallax.
+    assert!(eyes[0] != left && eyes[0] != eyes[1]);
+    // With the history reprojected by the head's view (temporal reprojection), the
+    // eyes stay as close to themselves alone after a few frames.
+    let temporal = Settings {
+        temporal: true,
+        ..settings
+    };
+    let t = FrameTarget::stereo(0, head(&scene), eye_m, SIZE.0, SIZE.1);
+    let mut r = Renderer::new(gpu(), scene.clone(), temporal).unwrap();
+    let mut out = None;
+    for _ in 0..3 {
+        out = Some(r.render_targets(std::slice::from_ref(&t), TIME).unwrap());
+    }
+    let frame = &out.unwrap().images[0];
+    for i in 0..2 {
+        let mut r = Renderer::new(gpu(), scene.clone(), temporal).unwrap();
+        let one = FrameTarget::single(0, t.views[i].camera, SIZE.0, SIZE.1);
+        let mut alone = None;
+        for _ in 0..3 {
+            alone = Some(r.render_targets(std::slice::from_ref(&one), TIME).unwrap());
+        }
+        let e = flip(&alone.unwrap().images[0], &t.tile(frame, i), SIZE);
+        assert!(e <= 0.02, "temporal, eye {i}: FLIP {e} against alone");
+    }
+}
+
 #[test]
 fn eye_distance_zero_shares_fully_and_the_eyes_are_identical() {
     let scene = colonnade();
     let settings = Settings::default();
-    let (eyes, c) = stereo(&scene, settings, 0.0, (W, H));
     let [(left, l), _] = alone(&scene, settings, 0.0, (W, H));
-    assert!(eyes[0] == eyes[1], "both eyes at one point see the same");
-    assert!(eyes[0] == left, "and what one eye alone sees");
-    assert_eq!(
-        c.stats.froxels_with_media, l.stats.froxels_with_media,
-        "one volume for both"
-    );
+    // The head between two eyes at one point is that point: both ways are the same.
+    for head in [false, true] {
+        let s = Settings {
+            stereo_head: head,
+            ..settings
+        };
+        let (eyes, c) = stereo(&scene, s, 0.0, (W, H));
+        assert!(eyes[0] == eyes[1], "both eyes at one point see the same");
+        assert!(eyes[0] == left, "and what one eye alone sees (head {head})");
+        assert_eq!(
+            c.stats.froxels_with_media, l.stats.froxels_with_media,
+            "one volume for both"
+        );
+    }
 }
 
 #[test]

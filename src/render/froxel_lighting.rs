@@ -60,6 +60,7 @@ impl FroxelHistory {
         vol: &mut ViewerVolumes,
         ids: &[ViewerId],
         views: &[ViewGpu],
+        volume_view_projs: &[Mat4],
         keep: bool,
     ) {
         self.carried = None;
@@ -68,13 +69,13 @@ impl FroxelHistory {
             return;
         }
         std::mem::swap(&mut vol.froxels, &mut vol.froxel_history);
-        for (id, v) in ids.iter().zip(views) {
+        for ((id, v), view_proj) in ids.iter().zip(views).zip(volume_view_projs) {
             // A coupled stereo eye without a near field wrote no froxels.
             if v.light_slices == 0 {
                 continue;
             }
             let h = ViewerHistory {
-                view_proj: Mat4::from_cols_array_2d(&v.view_proj),
+                view_proj: *view_proj,
                 froxel_base: v.froxel_base,
             };
             self.viewers.insert(*id, h);

@@ -127,6 +127,10 @@ pub(crate) struct ViewGpu {
     /// the near field for a coupled stereo eye (`stereo_near_px`), 0 for one that reads
     /// its partner's volume only.
     pub light_slices: u32,
+    /// Where its froxel volume is lit from: its eye, or for the first eye of a stereo
+    /// head (`stereo_head`) the midpoint of the head's eyes (`volume_of` in common.wgsl).
+    pub origin: [f32; 3],
+    pub _pad: u32,
 }
 
 /// `ViewGpu::history_base` of a viewer without last frame's froxels.
@@ -246,7 +250,7 @@ impl From<&Medium> for MediumGpu {
 }
 
 const _: () = assert!(std::mem::size_of::<FrameGpu>() == 256);
-const _: () = assert!(std::mem::size_of::<ViewGpu>() == 256);
+const _: () = assert!(std::mem::size_of::<ViewGpu>() == 272);
 const _: () = assert!(std::mem::size_of::<LightGpu>() == 48);
 const _: () = assert!(std::mem::size_of::<MediumGpu>() == 160);
 const _: () = assert!(std::mem::size_of::<LightMediaGpu>() == 48);

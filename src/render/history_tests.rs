@@ -88,3 +88,41 @@ fn nan_and_inf_in_the_history_are_discarded() {
         );
     }
 }
+
+/// A stereo head's volume is lit from between the eyes (`stereo_head`): its history is
+/// kept with that point's view-projection, which the next frame reprojects with, not
+/// the first eye's (whose volume it is not).
+#[test]
+fn a_stereo_heads_history_is_reprojected_from_between_the_eyes() {
+    use super::FrameTarget;
+    let ctx = Arc::new(GpuContext::new().expect("a Vulkan adapter (lavapipe on CI)"));
+    let scene = Arc::new(Scene::load("colonnade").expect("built-in scene"));
+    let settings = Settings {
+        temporal: true,
+        stereo_head: true,
+        ..Settings::default()
+    };
+    let head = scene.camera.viewers(1, 0.0)[0];
+    let target = FrameTarget::stereo(7, head, 0.064, W, H);
+    let mut r = Renderer::new(ctx, scene.clone(), settings).expect("renderer");
+    r.render_targets(std::slice::from_ref(&target), 0.0)
+        .expect("frame 1");
+    let set = r.sets.values().next().expect("a viewer set after a frame");
+    let (near, far) = (scene.render.near_m, scene.render.far_m);
+    let aspect = W as f32 / H as f32;
+    let vp = |c: crate::scene::Camera| c.projection(aspect, near, far) * c.view();
+    let first_eye = target.views[0];
+    let h = set
+        .history
+        .of(first_eye.id)
+        .expect("the head's volume keeps a history");
+    let expected = vp(head);
+    assert!(
+        h.view_proj.abs_diff_eq(expected, 1e-5),
+        "history kept with {:?}, the head's view-projection is {expected:?}",
+        h.view_proj
+    );
+    assert!(!h.view_proj.abs_diff_eq(vp(first_eye.camera), 1e-4));
+    // The second eye lights nothing of its own and keeps no history.
+    assert!(set.history.of(target.views[1].id).is_none());
+}

@@ -291,6 +291,18 @@ settings! {
     /// (docs/decisions.md, "Coupled stereo").
     #[serde(default = "default_stereo_near_px")]
     stereo_near_px: f32 = default_stereo_near_px();
+
+    /// Coupled stereo's shared volume is lit from the midpoint between the eyes (the
+    /// head), and both eyes integrate it along their own rays; no eye lights a near field
+    /// (off: the first eye lights it from its own eye and the second eye reads it beyond
+    /// its near field, `stereo_near_px`).
+    ///
+    /// Each eye then reads froxels lit half an eye distance away, instead of one eye
+    /// exactly and the other a whole eye distance away (docs/decisions.md, "Coupled
+    /// stereo: the volume from between the eyes").
+    // Reports from before a setting existed read it as off (`serde(default)`).
+    #[serde(default)]
+    stereo_head: bool = false;
 }
 
 // What reports from before these settings existed read as (and their defaults).

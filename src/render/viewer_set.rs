@@ -39,6 +39,9 @@ pub(crate) struct ViewerSet {
     views: wgpu::Buffer,
     /// This frame's views, in slot order.
     pub(crate) gpu_views: Vec<ViewGpu>,
+    /// The view-projection of each slot's froxel volume (its eye's, or a stereo head's
+    /// midpoint's): what temporal reprojection reads last frame's froxels with.
+    volume_view_projs: Vec<glam::Mat4>,
     pub(crate) raster_views: Vec<RasterView>,
     /// Index of the set's first viewer among every set's viewers this frame.
     pub(crate) first_view: usize,
@@ -69,6 +72,7 @@ impl ViewerSet {
             frame,
             views,
             gpu_views: Vec::new(),
+            volume_view_projs: Vec::new(),
             raster_views: Vec::new(),
             first_view: 0,
             targets: Vec::new(),
@@ -156,6 +160,7 @@ impl ViewerSet {
         let aspect = layout.width as f32 / layout.height as f32;
         let tan_x_scale = aspect;
         self.gpu_views.clear();
+        self.volume_view_projs.clear();
         self.raster_views.clear();
         self.targets.clear();
         self.ids.clear();
@@ -174,6 +179,9 @@ impl ViewerSet {
             partner: Option<(usize, usize)>,
             /// Slices it lights itself.
             light_slices: u32,
+            /// Where its volume is lit from (`stereo_head`: a partner's, its group's
+            /// midpoint).
+            origin: glam::Vec3,
         }
         let focal_px = layout.width as f32 * 0.5;
         let mut placed: Vec<Vec<Placed>> = Vec::with_capacity(targets.len());
@@ -181,6 +189,7 @@ impl ViewerSet {
         for (k, &(index, t)) in targets.iter().enumerate() {
             let cameras: Vec<Camera> = t.views.iter().map(|v| v.camera).collect();
             let partners = stereo_pairs(&cameras, settings.stereo_share_m);
+            let origins = volume_origins(&cameras, &partners, settings.stereo_head);
             self.targets.push(TargetSlice {
                 target: index,
                 first_pixel,
@@ -190,12 +199,20 @@ impl ViewerSet {
                 t.views
                     .iter()
                     .zip(partners)
-                    .map(|(v, p)| {
+                    .zip(origins)
+                    .map(|((v, p), origin)| {
                         let c = &v.camera;
                         let tan_x = (c.fov_y * 0.5).tan() * tan_x_scale;
+                        // A stereo head's eyes both read its volume: no near field.
                         let near_field = p.map(|i| {
                             let eye_m = c.position.distance(cameras[i].position);
-                            near_slices(settings, focal_px / tan_x, eye_m, (near, far))
+                            let near_slices =
+                                near_slices(settings, focal_px / tan_x, eye_m, (near, far));
+                            if settings.stereo_head {
+                                0
+                            } else {
+                                near_slices
+                            }
                         });
                         // A near field as deep as the volume is a volume of its own.
                         let partner = p.filter(|_| near_field < Some(settings.slices));
@@ -209,6 +226,7 @@ impl ViewerSet {
                             light_slices: near_field
                                 .filter(|_| partner.is_some())
                                 .unwrap_or(settings.slices),
+                            origin,
                         }
                     })
                     .collect(),
@@ -237,6 +255,12 @@ impl ViewerSet {
             let volume_view = p.partner.map_or(slot, |(pk, pj)| slot_of[pk][pj]);
             let c = &v.camera;
             let vp = c.projection(aspect, near, far) * c.view();
+            let lit_from = Camera {
+                position: p.origin,
+                ..*c
+            };
+            self.volume_view_projs
+                .push(lit_from.projection(aspect, near, far) * lit_from.view());
             let right = c.forward.cross(c.up()).normalize();
             let up = right.cross(c.forward);
             let tan_y = (c.fov_y * 0.5).tan();
@@ -266,6 +290,8 @@ impl ViewerSet {
                 history_base: history.map_or(NO_HISTORY, |h| h.froxel_base),
                 volume_view,
                 light_slices: p.light_slices,
+                origin: p.origin.to_array(),
+                _pad: 0,
             });
             self.ids.push(v.id);
             cameras.push(*c);
@@ -292,8 +318,13 @@ impl ViewerSet {
     /// After the frame: froxel lighting's history moves on (see [`FroxelHistory`]).
     pub(crate) fn finish(&mut self, settings: &Settings, froxels_written: bool) {
         let keep = settings.temporal && froxels_written;
-        self.history
-            .finish(&mut self.vol, &self.ids, &self.gpu_views, keep);
+        self.history.finish(
+            &mut self.vol,
+            &self.ids,
+            &self.gpu_views,
+            &self.volume_view_projs,
+            keep,
+        );
     }
 }
 
@@ -319,6 +350,28 @@ pub(crate) fn stereo_pairs(cameras: &[Camera], share_m: f32) -> Vec<Option<usize
         partners.push(partner);
     }
     partners
+}
+
+/// Where each of one frame's `cameras` lights its froxel volume from, given its
+/// `partners` ([`stereo_pairs`]): its own eye, or with `head` (setting `stereo_head`), for
+/// a view that others share, the midpoint of its own and their eyes (a stereo head's two
+/// eyes: the point between them). The views look the same way, so the volume's slices
+/// are the views' depth planes, and every eye reads it half an eye distance away.
+pub(crate) fn volume_origins(
+    cameras: &[Camera],
+    partners: &[Option<usize>],
+    head: bool,
+) -> Vec<glam::Vec3> {
+    let mut sum: Vec<(glam::Vec3, f32)> = cameras.iter().map(|c| (c.position, 1.0)).collect();
+    if head {
+        for (j, p) in partners.iter().enumerate() {
+            if let Some(i) = *p {
+                sum[i].0 += cameras[j].position;
+                sum[i].1 += 1.0;
+            }
+        }
+    }
+    sum.into_iter().map(|(p, n)| p / n).collect()
 }
 
 /// Coupled stereo's near field: the slices a second eye `eye_m` from its partner lights
@@ -350,6 +403,28 @@ fn frame_jitter(s: &Settings, frame_index: u32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_head_volume_is_lit_from_between_the_eyes_that_share_it() {
+        use glam::Vec3;
+        let eye = |x: f32| Camera::new(Vec3::new(x, 1.0, 0.0), Vec3::NEG_Z, 1.2);
+        // Two eyes 6 cm apart and a third view far off.
+        let cameras = [eye(0.0), eye(0.06), eye(5.0)];
+        let partners = stereo_pairs(&cameras, 0.07);
+        assert_eq!(partners, vec![None, Some(0), None]);
+        let own = volume_origins(&cameras, &partners, false);
+        assert_eq!(own, cameras.map(|c| c.position).to_vec());
+        let head = volume_origins(&cameras, &partners, true);
+        assert!((head[0] - Vec3::new(0.03, 1.0, 0.0)).length() < 1e-6);
+        assert_eq!(head[1], cameras[1].position);
+        assert_eq!(head[2], cameras[2].position);
+        // Three views that nearly coincide share the first: its volume is lit from
+        // their centroid.
+        let three = [eye(0.0), eye(0.03), eye(0.06)];
+        let p = stereo_pairs(&three, 0.07);
+        assert_eq!(p, vec![None, Some(0), Some(0)]);
+        assert!((volume_origins(&three, &p, true)[0].x - 0.03).abs() < 1e-6);
+    }
 
     #[test]
     fn the_near_field_ends_where_the_disparity_falls_to_stereo_near_px() {
