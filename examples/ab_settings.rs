@@ -1,0 +1,97 @@
+//! Two settings against each other, frame by frame: two renderers take turns on the same
+//! targets, and each stage's ratio is the median of the per-frame ratios of neighbouring
+//! frames (B over A). Lavapipe's frame times drift by ±10 % between runs; frames rendered
+//! back to back drift together, so a few percent show where two separate runs cannot.
+//!
+//! `cargo run --example ab_settings -- SCENE A B [FRAMES] [HEADS] [mono]`
+//!
+//! A and B are `key=value,…` over `shared`'s defaults (`-`: the defaults), as a bench
+//! `--variant` takes them. The targets are HEADS stereo sessions (320×180 per eye, eyes
+//! 6.4 cm apart) at the heads of the scene's camera path at t = 0, or HEADS mono viewers
+//! with `mono`. Two warm-up frames each; FRAMES (default 12) measured frames each.
+//! Example: `cargo run --example ab_settings -- colonnade - stereo_head=on 20 2`.
+
+use anyhow::Context as _;
+use fogcast::gpu::GpuContext;
+use fogcast::render::{FrameTarget, Renderer, Settings};
+use fogcast::scene::Scene;
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+const WARMUP: usize = 2;
+
+fn settings(overrides: &str) -> anyhow::Result<Settings> {
+    let mut s = Settings::default();
+    if overrides != "-" && !overrides.is_empty() {
+        s.set_all(overrides)?;
+    }
+    Ok(s)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let [scene_name, a, b, rest @ ..] = args.as_slice() else {
+        anyhow::bail!("usage: ab_settings SCENE A B [FRAMES] [HEADS] [mono]");
+    };
+    let frames: usize = rest
+        .first()
+        .map_or(Ok(12), |s| s.parse())
+        .context("FRAMES")?;
+    let heads: usize = rest.get(1).map_or(Ok(1), |s| s.parse()).context("HEADS")?;
+    let mono = rest.get(2).is_some_and(|s| s == "mono");
+    anyhow::ensure!(
+        frames > 0 && heads > 0,
+        "FRAMES and HEADS must be at least 1"
+    );
+    let ctx = Arc::new(GpuContext::new()?);
+    let scene = Arc::new(Scene::load(scene_name)?);
+    let renderer = |o: &str| Renderer::new(ctx.clone(), scene.clone(), settings(o)?);
+    let mut renderers = [renderer(a)?, renderer(b)?];
+    let targets: Vec<FrameTarget> = scene
+        .camera
+        .viewers(heads, 0.0)
+        .into_iter()
+        .enumerate()
+        .map(|(i, c)| {
+            if mono {
+                FrameTarget::single(i as u64, c, 320, 180)
+            } else {
+                FrameTarget::stereo(2 * i as u64, c, 0.064, 320, 180)
+            }
+        })
+        .collect();
+    // Per renderer: stage → GPU ms of each measured frame.
+    let mut ms: [BTreeMap<String, Vec<f64>>; 2] = Default::default();
+    for f in 0..2 * (WARMUP + frames) {
+        let k = f % 2;
+        let out = renderers[k].render_targets(&targets, 0.0)?;
+        if f < 2 * WARMUP {
+            continue;
+        }
+        let stages = &out.stats.stage_gpu_ms;
+        for s in stages {
+            ms[k].entry(s.stage.clone()).or_default().push(s.gpu_ms);
+        }
+        let frame = stages.iter().map(|s| s.gpu_ms).sum();
+        ms[k].entry("frame".into()).or_default().push(frame);
+    }
+    println!("{scene_name}: A = {a}, B = {b}; {frames} frames each, GPU ms (medians)");
+    println!("| stage | A | B | B / A, median of per-frame ratios |");
+    println!("|---|---|---|---|");
+    for (stage, va) in &ms[0] {
+        let Some(vb) = ms[1].get(stage) else { continue };
+        let ratios = va.iter().zip(vb).map(|(x, y)| y / x.max(1e-9)).collect();
+        println!(
+            "| {stage} | {:.2} | {:.2} | {:.3} |",
+            median(va.clone()),
+            median(vb.clone()),
+            median(ratios)
+        );
+    }
+    Ok(())
+}
