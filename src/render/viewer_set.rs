@@ -206,13 +206,10 @@ impl ViewerSet {
                         // A stereo head's eyes both read its volume: no near field.
                         let near_field = p.map(|i| {
                             let eye_m = c.position.distance(cameras[i].position);
-                            let near_slices =
-                                near_slices(settings, focal_px / tan_x, eye_m, (near, far));
                             if settings.stereo_head {
-                                0
-                            } else {
-                                near_slices
+                                return 0;
                             }
+                            near_slices(settings, focal_px / tan_x, eye_m, (near, far))
                         });
                         // A near field as deep as the volume is a volume of its own.
                         let partner = p.filter(|_| near_field < Some(settings.slices));
