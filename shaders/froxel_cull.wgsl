@@ -45,10 +45,10 @@ fn column_limit_pass(@builtin(global_invocation_id) gid: vec3u) {
     var far = 0.0;
     // Froxels that a coupled stereo eye integrates too (its volume_view is this view)
     // are lit for what either eye's tiles show (and a stereo head's volume, lit from
-    // between the eyes, for what both eyes' tiles show, each as a coupled eye's). Beyond its near field the eyes' disparity
-    // is under a froxel (stereo_near_px), so the coupled eye's column reads this view's
-    // columns ±1 and needs the depth of its own 3 × 3 tiles: its tiles ±2 cover that
-    // (viewer_set.rs, `stereo_pairs`).
+    // between the eyes, for what both eyes' tiles show, each as a coupled eye's). Beyond
+    // its near field the eyes' disparity is under a froxel (stereo_near_px), so the
+    // coupled eye's column reads this view's columns ±1 and needs the depth of its own
+    // 3 × 3 tiles: its tiles ±2 cover that (viewer_set.rs, `stereo_pairs`).
     for (var w = 0u; w < frame.view_count; w++) {
         if w != gid.z && views[w].volume_view != gid.z {
             continue;

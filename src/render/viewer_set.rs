@@ -252,12 +252,17 @@ impl ViewerSet {
             let volume_view = p.partner.map_or(slot, |(pk, pj)| slot_of[pk][pj]);
             let c = &v.camera;
             let vp = c.projection(aspect, near, far) * c.view();
-            let lit_from = Camera {
-                position: p.origin,
-                ..*c
+            // A stereo head's volume is seen from between the eyes; any other from the eye.
+            let volume_vp = if p.origin == c.position {
+                vp
+            } else {
+                let lit_from = Camera {
+                    position: p.origin,
+                    ..*c
+                };
+                lit_from.projection(aspect, near, far) * lit_from.view()
             };
-            self.volume_view_projs
-                .push(lit_from.projection(aspect, near, far) * lit_from.view());
+            self.volume_view_projs.push(volume_vp);
             let right = c.forward.cross(c.up()).normalize();
             let up = right.cross(c.forward);
             let tan_y = (c.fov_y * 0.5).tan();
