@@ -319,6 +319,15 @@ fn in_brick(q: vec3u) -> u32 {
     return l.x + BRICK * (l.y + BRICK * l.z);
 }
 
+// The dense grid's request bit at request coordinate r: (word, mask). Request
+// coordinates are voxel coordinates + 1, 0 ..= dims along each axis (0: a trilinear
+// lookup clamped below the grid), one bit each, every row along x padded to whole words.
+fn request_bit(r: vec3u) -> vec2u {
+    let d = frame.grid_dims;
+    let row_words = (d.x + 32u) / 32u;
+    return vec2u(r.x / 32u + row_words * (r.y + (d.y + 1u) * r.z), 1u << (r.x % 32u));
+}
+
 const PI: f32 = 3.14159265358979;
 // Froxels store S / max(σt, SIGMA_EPS); below it the σt → 0 limit S·d is used.
 const SIGMA_EPS: f32 = 1e-4;

@@ -5,9 +5,13 @@
 // medium, or hidden behind the depth buffer (froxel_cull.wgsl), mark nothing. All viewers
 // in one dispatch; an invocation walks one froxel column (z runs over viewers).
 //
-// Dense grid (`main`): one u32 per voxel. Sparse grid: `mark_bricks` flags the bricks
-// the froxels read, `allocate` gives each flagged brick a pool slot, `mark_voxels`
-// sets the read voxels' bits (512 per brick) in the slot's request words.
+// Dense grid (`main`): one bit per voxel (`request_bit` in common.wgsl). A trilinear
+// lookup sets only the bit of the lowest of the 8 voxels it reads, and the grid pass
+// takes a voxel as requested when its bit or one of its 7 lower neighbours' is set
+// (shared_grid.wgsl): one atomicOr per lookup, paid per viewer, instead of 8 stores.
+// Sparse grid: `mark_bricks` flags the bricks the froxels read, `allocate` gives each
+// flagged brick a pool slot, `mark_voxels` sets the read voxels' bits (512 per brick)
+// in the slot's request words.
 
 @group(1) @binding(0) var<storage, read_write> requests: array<atomic<u32>>;
 @group(1) @binding(1) var<storage, read_write> brick_table: array<u32>;
@@ -20,11 +24,18 @@ const PHASE_VOXELS: u32 = 2u;
 
 var<private> phase: u32;
 
+// Requests voxel `c` (clamped into the grid), or on the dense grid with trilinear
+// lookups the 2 × 2 × 2 voxels from `c` on (those inside the grid).
 fn request(c: vec3i) {
-    let q = vec3u(clamp(c, vec3i(0), vec3i(frame.grid_dims) - 1));
+    let last = vec3i(frame.grid_dims) - 1;
     if phase == PHASE_DENSE {
-        atomicStore(&requests[q.x + frame.grid_dims.x * (q.y + frame.grid_dims.y * q.z)], 1u);
-    } else if phase == PHASE_BRICKS {
+        let lowest = select(0, -1, (frame.flags & FLAG_TRILINEAR) != 0u);
+        let bit = request_bit(vec3u(clamp(c, vec3i(lowest), last) + 1));
+        atomicOr(&requests[bit.x], bit.y);
+        return;
+    }
+    let q = vec3u(clamp(c, vec3i(0), last));
+    if phase == PHASE_BRICKS {
         brick_table[brick_of(q)] = BRICK_MISSING;
     } else {
         let t = brick_table[brick_of(q)];
@@ -100,7 +111,7 @@ fn request_column(gid: vec3u) {
             continue;
         }
         prev = base;
-        if !trilinear {
+        if !trilinear || phase == PHASE_DENSE {
             request(base);
         } else {
             for (var k = 0u; k < 8u; k++) {

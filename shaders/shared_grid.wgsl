@@ -18,6 +18,33 @@
 // moving ones (FLAG_GRID_MEDIA_MOVES) every frame it is needed, whatever its light bits.
 @group(1) @binding(5) var<storage, read_write> grid_density: array<u32>;
 
+// Request bits x0 ..= x0 + 4 of the request row (y, z), as bits 0..4 (request_bit).
+fn request_bits5(x0: u32, y: u32, z: u32) -> u32 {
+    let bit = request_bit(vec3u(x0, y, z));
+    var w = requests[bit.x] >> (x0 % 32u);
+    // Bit x0 + 4 is the next word's first when x0 % 32 = 28 (if the row has it).
+    if x0 % 32u == 28u && x0 + 4u <= frame.grid_dims.x {
+        w |= requests[bit.x + 1u] << 4u;
+    }
+    return w & 0x1fu;
+}
+
+// Which of the 4 voxels of the word at (x0, y, z) (x0 a multiple of 4) some froxel's
+// lookup reads (FLAG_DEMAND, dense grid), as bits 0..3. Request coordinates are voxel
+// coordinates + 1 (grid_requests.wgsl); a trilinear lookup sets the bit of the lowest of
+// its 8 voxels, so voxel q is read when request q + 1 − (i, j, k) is set for some i, j,
+// k in {0, 1}: bits x0 ..= x0 + 4 of the request rows (y, z) ..= (y + 1, z + 1).
+fn requested_voxels(x0: u32, y: u32, z: u32) -> u32 {
+    if (frame.flags & FLAG_TRILINEAR) == 0u {
+        return request_bits5(x0, y + 1u, z + 1u) >> 1u;
+    }
+    var m = 0u; // bit j: request x0 + j, the lowest corner of voxel x0 + j − 1's lookups
+    for (var k = 0u; k < 4u; k++) {
+        m |= request_bits5(x0, y + (k & 1u), z + (k >> 1u));
+    }
+    return (m | (m >> 1u)) & 0xfu;
+}
+
 // Summed density of the media the grid carries (in_layer with FLAG_GRID_MEDIA) at `p`,
 // as its 8-bit code.
 fn density_code(p: vec3f) -> u32 {
@@ -133,6 +160,10 @@ fn main(
         if media {
             old_codes = grid_density[word_index];
         }
+        var requested = 0u;
+        if (frame.flags & FLAG_DEMAND) != 0u && (may_trace || media) {
+            requested = requested_voxels(gid.x * 4u, gid.y, gid.z);
+        }
         for (var i = 0u; i < 4u; i++) {
             let x = gid.x * 4u + i;
             if x >= dims.x || !(may_trace || media) {
@@ -140,7 +171,7 @@ fn main(
             }
             var seen = false;
             if (frame.flags & FLAG_DEMAND) != 0u {
-                seen = requests[x + dims.x * (gid.y + dims.y * gid.z)] != 0u;
+                seen = ((requested >> i) & 1u) != 0u;
             } else {
                 let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
                 for (var vi = 0u; vi < frame.view_count; vi++) {

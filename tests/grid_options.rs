@@ -43,17 +43,32 @@ fn render(r: &mut Renderer, cams: &[Camera], t: f32) -> FrameOutput {
 
 #[test]
 fn demand_driven_update_traces_fewer_voxels_with_identical_bits_and_image() {
+    demand_matches_gated(true);
+}
+
+/// Nearest-voxel lookups request one voxel each (trilinear ones the lowest of their 8,
+/// shaders/grid_requests.wgsl): both give the frustum-gated picture.
+#[test]
+fn demand_driven_nearest_lookups_give_the_frustum_gated_image() {
+    demand_matches_gated(false);
+}
+
+fn demand_matches_gated(trilinear: bool) {
     let scene = Arc::new(Scene::load("colonnade").unwrap());
     let cams = scene.camera.viewers(3, 1.0);
-    let mut gated = Renderer::new(gpu(), scene.clone(), settings(false, false)).unwrap();
-    let mut demand = Renderer::new(gpu(), scene.clone(), settings(true, false)).unwrap();
+    let with = |demand| Settings {
+        trilinear,
+        ..settings(demand, false)
+    };
+    let mut gated = Renderer::new(gpu(), scene.clone(), with(false)).unwrap();
+    let mut demand = Renderer::new(gpu(), scene.clone(), with(true)).unwrap();
     let a = render(&mut gated, &cams, 1.0);
     let b = render(&mut demand, &cams, 1.0);
     let gated_bits: std::collections::HashMap<usize, u8> =
         traced_masks(&gated).into_iter().collect();
     let demand_bits = traced_masks(&demand);
     println!(
-        "frustum-gated: {} voxels, {} grid rays; demand-driven: {} voxels, {} grid rays",
+        "trilinear {trilinear}: frustum-gated: {} voxels, {} grid rays; demand-driven: {} voxels, {} grid rays",
         a.stats.voxels_traced,
         a.stats.rays.shared_grid,
         b.stats.voxels_traced,

@@ -30,8 +30,9 @@ pub struct SharedShadowGrid {
     pub(crate) grid: wgpu::Buffer,
     /// One nibble per word: which of its 4 voxels were traced this frame (dense only).
     pub(crate) touched: wgpu::Buffer,
-    /// Demand-driven update. Dense: one u32 per voxel, non-zero when a froxel reads it.
-    /// Sparse: one bit per pool voxel.
+    /// Demand-driven update. Dense: one bit per voxel (`request_bit`, common.wgsl); a
+    /// trilinear lookup sets the bit of the lowest of the 8 voxels it reads. Sparse: one
+    /// bit per pool voxel.
     pub(crate) requests: wgpu::Buffer,
     /// Temporal caching: which light bits of each voxel are current (grid layout).
     pub(crate) valid: wgpu::Buffer,
@@ -185,7 +186,10 @@ impl SharedShadowGrid {
         let (grid_bytes, request_bytes, table_bytes) = if policy.sparse() {
             (pool * BRICK_WORDS * 4, pool * BRICK_WORDS, bricks * 4)
         } else if policy.requests() {
-            (words * 4, voxels * 4, 16)
+            // One request bit per voxel and one more layer below the grid on each
+            // axis, rows along x padded to whole words (`request_bit`, common.wgsl).
+            let rows = (dims.y as u64 + 1) * (dims.z as u64 + 1);
+            (words * 4, (dims.x as u64 + 32) / 32 * rows * 4, 16)
         } else {
             (words * 4, 16, 16)
         };
