@@ -36,7 +36,7 @@ render: deps-runtime build
 # per viewer; colonnade also with 0.5 m and 0.125 m grids, the world media layer
 # (`layer`) and the fixed-overlap scenario (paper Figure 12); smokehall for the smoke
 # (issue 15: the shared smoke shadow maps once, the smoke per viewer). Reports and
-# plots go to out/bench/<scene>/. About 20 minutes on 2 cores with lavapipe. The dev
+# plots go to out/bench/<scene>/. About 20–30 minutes on 2 cores with lavapipe. The dev
 # profile (opt-level 2, the one `make test` builds) is enough: the GPU work runs in Mesa.
 # Flags for every run, e.g. BENCH_ARGS="--frames 3 --width 640 --height 360".
 BENCH_ARGS ?=
