@@ -67,6 +67,11 @@ pub struct BenchArgs {
     /// Output folder [default: out/bench/<scene file stem>].
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Run the whole bench this many times, each run's report in `run-<k>/` of the
+    /// output folder, and every acceptance check's value per run in its `checks.md`
+    /// (how many runs pass each bound; one run's time ratios move with the machine's load).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=50))]
+    pub repeat: u32,
     /// Measure nothing: rewrite the tables and plots of an earlier run from its
     /// `bench.json` in this folder.
     #[arg(long, value_name = "DIR", conflicts_with = "out")]
@@ -138,10 +143,33 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
     }
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let cfg = args.config(command)?;
+    if args.repeat == 1 {
+        run_with_progress(&cfg)?;
+        return Ok(());
+    }
+    let mut runs = Vec::new();
+    for k in 1..=args.repeat {
+        eprintln!("run {k} of {}", args.repeat);
+        let mut c = cfg.clone();
+        c.out = cfg.out.join(format!("run-{k}"));
+        runs.push(run_with_progress(&c)?);
+    }
+    let (path, checks) = super::repeat::write(&runs, &cfg)?;
+    for c in checks.iter().filter(|c| c.bound.is_some()) {
+        let bound = c.bound.unwrap_or_default();
+        let (n, of) = (c.passes(), c.values.len());
+        println!("{n} of {of} runs within ≤ {bound}: {}", c.what);
+    }
+    println!("checks of {} runs in {}", runs.len(), path.display());
+    Ok(())
+}
+
+/// One bench run of `cfg` with a progress bar on stderr; prints where the report went.
+fn run_with_progress(cfg: &BenchConfig) -> anyhow::Result<super::BenchReport> {
     let started = std::time::Instant::now();
     let tty = std::io::stderr().is_terminal();
     let last_step = std::sync::atomic::AtomicUsize::new(usize::MAX);
-    let report = super::run(&cfg, &|p: &Progress| {
+    let report = super::run(cfg, &|p: &Progress| {
         // On a terminal the bar redraws in place; in a log, a line every 5 %.
         let step = p.done * 20 / p.total.max(1);
         if !tty && last_step.swap(step, std::sync::atomic::Ordering::Relaxed) == step {
@@ -178,5 +206,5 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
         report.elapsed_s,
         cfg.out.join("bench.md").display()
     );
-    Ok(())
+    Ok(report)
 }

@@ -22,6 +22,7 @@
 //! writes JSON, CSV, markdown and plots.
 
 mod cli;
+pub mod repeat;
 pub mod report;
 mod variant;
 

@@ -41,9 +41,24 @@ pub struct Check {
 }
 
 impl Check {
+    /// The value as the tables print it: 3 decimals, or 5 where that would hide it (a
+    /// FLIP difference of a few 10⁻⁵ is not 0.000).
+    pub fn value_text(&self) -> String {
+        value_text(self.value)
+    }
+
     /// Whether the value is within the bound (always true without one).
     pub fn passed(&self) -> bool {
         self.bound.is_none_or(|b| self.value <= b)
+    }
+}
+
+/// See [`Check::value_text`].
+pub fn value_text(v: f64) -> String {
+    if v != 0.0 && v.abs() < 0.01 {
+        format!("{v:.5}")
+    } else {
+        format!("{v:.3}")
     }
 }
 
@@ -737,7 +752,7 @@ fn markdown(r: &BenchReport) -> String {
             for c in &checks {
                 t.push(vec![
                     c.what.clone(),
-                    format!("{:.3}", c.value),
+                    c.value_text(),
                     c.bound.map_or("–".into(), |b| format!("≤ {b}")),
                     match c.bound {
                         None => "reported".into(),
@@ -846,7 +861,7 @@ fn stereo_tables(r: &BenchReport) -> String {
     for c in stereo_checks(r) {
         checks.push(vec![
             c.what.clone(),
-            format!("{:.3}", c.value),
+            c.value_text(),
             c.bound.map_or("–".into(), |b| format!("≤ {b}")),
             if c.passed() {
                 "pass".into()
