@@ -96,8 +96,10 @@ fn request_column(gid: vec3u) {
     }
     let trilinear = (frame.flags & FLAG_TRILINEAR) != 0u;
     var prev = vec3i(-2147483647);
+    // The column's ray once; froxel_point gives the lighting stage's points exactly.
+    let dir = froxel_ray(v, gid.xy);
     for (var slice = frame.frustum_slices; slice <= last; slice++) {
-        let p = froxel_sample(v, gid.xy, slice).p;
+        let p = froxel_point(v, dir, slice);
         // Inside the box of the grid's media (FLAG_GRID_MEDIA) froxel lighting reads
         // their density from the grid wherever the media are or are not.
         let grid_media = (frame.flags & FLAG_GRID_MEDIA) != 0u
