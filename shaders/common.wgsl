@@ -338,18 +338,9 @@ fn view_ray(v: View, pix: vec2f) -> vec3f {
     return normalize(v.forward + v.right * (ndc.x * v.tan_x) + v.up * (ndc.y * v.tan_y));
 }
 
-// The sample of froxel (x, y, slice) of view `v`: its world point (on the view ray
-// through the froxel's centre, at the slice's centre depth) and the unit ray. The
-// lighting and grid-request stages both use it, so they see exactly the same points.
-struct FroxelSample {
-    p: vec3f,
-    dir: vec3f,
-}
-
-fn froxel_sample(v: View, xy: vec2u, slice: u32) -> FroxelSample {
-    let dir = froxel_ray(v, xy);
-    return FroxelSample(froxel_point(v, dir, slice), dir);
-}
+// A froxel's sample is `froxel_point(v, froxel_ray(v, xy), slice)`: its world point on the
+// view ray through the froxel's centre, at the slice's centre depth. The lighting and
+// grid-request stages both build it so, so they see exactly the same points.
 
 // The unit view ray of froxel column `xy`.
 fn froxel_ray(v: View, xy: vec2u) -> vec3f {
