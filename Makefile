@@ -59,7 +59,7 @@ bench: deps-runtime
 # scene's whole bench run CHECK_RUNS times: out/checks/<scene>/checks.md lists every
 # check's value per run and how many runs pass its bound. A time ratio moves by 10-15 %
 # between runs on lavapipe, so one run cannot tell a bound missed by a few percent from
-# noise. About 2 minutes a run on 2 cores.
+# noise. About 8 minutes in all on 2 cores (a colonnade run ~30 s, a Sponza run ~60 s).
 CHECK_RUNS ?= 5
 checks: deps-runtime
 	$(CARGO) build
