@@ -155,8 +155,7 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
         runs.push(run_with_progress(&c)?);
     }
     let (path, checks) = super::repeat::write(&runs, &cfg)?;
-    for c in checks.iter().filter(|c| c.bound.is_some()) {
-        let bound = c.bound.unwrap_or_default();
+    for (c, bound) in checks.iter().filter_map(|c| Some((c, c.bound?))) {
         let (n, of) = (c.passes(), c.values.len());
         println!("{n} of {of} runs within ≤ {bound}: {}", c.what);
     }

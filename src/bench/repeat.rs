@@ -3,7 +3,7 @@
 //! ±10–15 % with the machine's load, so a verdict near its bound needs more than one run;
 //! the table says how many of the runs pass, not only whether the last one did.
 
-use super::report::{checks, stereo_checks, value_text, Check};
+use super::report::{checks, stereo_checks, value_text, within, Check};
 use super::{BenchConfig, BenchReport, Spread};
 use crate::report::Table;
 use std::path::PathBuf;
@@ -24,7 +24,7 @@ impl RepeatedCheck {
     pub fn passes(&self) -> usize {
         self.values
             .iter()
-            .filter(|&&v| self.bound.is_none_or(|b| v <= b))
+            .filter(|&&v| within(self.bound, v))
             .count()
     }
 

@@ -49,8 +49,13 @@ impl Check {
 
     /// Whether the value is within the bound (always true without one).
     pub fn passed(&self) -> bool {
-        self.bound.is_none_or(|b| self.value <= b)
+        within(self.bound, self.value)
     }
+}
+
+/// Whether `v` is at or under `bound` (always true without one).
+pub fn within(bound: Option<f64>, v: f64) -> bool {
+    bound.is_none_or(|b| v <= b)
 }
 
 /// See [`Check::value_text`].
