@@ -293,6 +293,7 @@ const C_TRANSMITTANCE_NODES: u32 = 8u; // shared media transmittance nodes fille
 const C_LAYER_BRICKS: u32 = 9u;  // media layer: bricks asked for this frame (in the pool or not)
 const C_LAYER_NODES: u32 = 10u;  // media layer: nodes filled this frame
 const C_GRID_MEDIA_VOXELS: u32 = 11u; // grid_media: voxels whose density was filled this frame
+const C_RASTER_TRIANGLES: u32 = 12u; // triangle_cull: static triangles kept for the G-buffer (shaders/triangle_cull.wgsl)
 
 // Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a
 // table over all bricks holds 0 (unused), slot + 1 (allocated in the pool) or

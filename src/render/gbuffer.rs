@@ -1,7 +1,10 @@
-//! G-buffer raster (one render pass per viewer, one submission), with `shaders/gbuffer.wgsl`.
+//! G-buffer raster (one render pass per viewer, one submission), with `shaders/gbuffer.wgsl`;
+//! with `triangle_cull`, each view draws the index list `shaders/triangle_cull.wgsl` wrote
+//! for it.
 
 use super::{scene_gpu::SceneGpu, Stage, Timestamps, ViewerSet};
-use crate::gpu::GpuContext;
+use crate::gpu::Access::{Read, ReadWrite};
+use crate::gpu::{storage_entry, GpuContext};
 use crate::scene::{Camera, Cull};
 use glam::{Mat4, Vec3};
 
@@ -13,20 +16,64 @@ pub(crate) struct RasterView {
     view_proj: [[f32; 4]; 4],
     position: [f32; 4],
     forward: [f32; 4],
+    /// Pixels (width, height, 0, 0).
+    size: [f32; 4],
 }
 
 impl RasterView {
-    /// One raster view per camera, sharing the clip range and aspect ratio.
-    pub(crate) fn for_cameras(cameras: &[Camera], aspect: f32, near: f32, far: f32) -> Vec<Self> {
+    /// One raster view per camera of `width`×`height` pixels, sharing the clip range.
+    pub(crate) fn for_cameras(
+        cameras: &[Camera],
+        (width, height): (u32, u32),
+        near: f32,
+        far: f32,
+    ) -> Vec<Self> {
+        let aspect = width as f32 / height as f32;
         cameras
             .iter()
             .map(|c| Self {
                 view_proj: (c.projection(aspect, near, far) * c.view()).to_cols_array_2d(),
                 position: c.position.extend(0.0).to_array(),
                 forward: c.forward.extend(0.0).to_array(),
+                size: [width as f32, height as f32, 0.0, 0.0],
             })
             .collect()
     }
+}
+
+/// Triangle culling's words per (view, cluster) pair: the count, then the masks of its
+/// 1024 triangles (`PAIR_WORDS` in shaders/triangle_cull.wgsl).
+const PAIR_WORDS: u64 = 33;
+
+/// Bytes of one `DrawIndexedIndirect` record.
+const DRAW_ARGS_BYTES: u64 = 20;
+
+/// GPU memory the G-buffer's triangle culling (`triangle_cull`) can hold per view in a
+/// scene of `static_triangles`: the view's index list if every cluster were in its
+/// frustum, and a pair record per cluster (clusters of one cull each: at most 3 more
+/// than a split into 1024s).
+pub fn triangle_list_bytes_per_view(settings: &super::Settings, static_triangles: u64) -> u64 {
+    if !settings.triangle_cull {
+        return 0;
+    }
+    let clusters = static_triangles.div_ceil(super::scene_gpu::CLUSTER_TRIANGLES as u64) + 3;
+    static_triangles * 12 + clusters * (16 + PAIR_WORDS * 4) + DRAW_ARGS_BYTES
+}
+
+/// Per-view triangle culling (`triangle_cull`): the frame's (view, cluster) pairs, what
+/// the pass keeps of each, and every view's index list and indirect draw.
+struct TriangleLists {
+    layout: wgpu::BindGroupLayout,
+    cull: wgpu::ComputePipeline,
+    compact: wgpu::ComputePipeline,
+    pairs: wgpu::Buffer,
+    kept: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    args: wgpu::Buffer,
+    /// This frame's pair count (the pair buffer is longer).
+    count: wgpu::Buffer,
+    /// This frame's pairs (0: nothing to cull, or culling off).
+    pair_count: u32,
 }
 
 /// Depth32Float, write on, nearer wins: the depth state of every raster pass.
@@ -71,6 +118,14 @@ pub(crate) struct GBuffer {
     layout: wgpu::BindGroupLayout,
     uniforms: wgpu::Buffer,
     capacity: usize,
+    /// `None` where the adapter lacks subgroups of 8 lanes or more (the culling pass
+    /// needs them): every view draws its clusters' ranges.
+    lists: Option<TriangleLists>,
+    /// This frame's triangles in the clusters each view's frustum touches, movers
+    /// included, summed over views: what the views draw without `triangle_cull`.
+    in_clusters: u64,
+    /// This frame's movers' triangles, summed over views (drawn whole either way).
+    mover_triangles: u64,
 }
 
 /// Whether the box (lo, hi) is outside the clip volume of `view_proj`: all eight corners
@@ -104,23 +159,206 @@ fn box_outside(view_proj: &Mat4, lo: Vec3, hi: Vec3) -> bool {
 /// (both sides). (Drawing the clusters nearest first did not speed lavapipe up: its
 /// G-buffer cost is in the triangles, not the fragments.)
 fn visible_ranges(scene: &SceneGpu, view: &RasterView) -> Vec<(Cull, std::ops::Range<u32>)> {
-    let vp = Mat4::from_cols_array_2d(&view.view_proj);
-    let static_end = scene.clusters.last().map_or(0, |c| c.indices.end);
-    let movers =
-        (static_end < scene.index_count).then_some((Cull::None, static_end..scene.index_count));
     let mut ranges: Vec<(Cull, std::ops::Range<u32>)> = Vec::new();
-    let visible = scene
-        .clusters
-        .iter()
-        .filter(|c| !box_outside(&vp, c.min, c.max))
-        .map(|c| (c.cull, c.indices.clone()));
-    for (cull, r) in visible.chain(movers) {
+    let visible = visible_clusters(scene, view).map(|k| {
+        let c = &scene.clusters[k];
+        (c.cull, c.indices.clone())
+    });
+    for (cull, r) in visible.chain(movers(scene)) {
         match ranges.last_mut() {
             Some((c, last)) if *c == cull && last.end == r.start => last.end = r.end,
             _ => ranges.push((cull, r)),
         }
     }
     ranges
+}
+
+/// The clusters whose boxes `view`'s frustum touches, in index order.
+fn visible_clusters<'a>(
+    scene: &'a SceneGpu,
+    view: &RasterView,
+) -> impl Iterator<Item = usize> + 'a {
+    let vp = Mat4::from_cols_array_2d(&view.view_proj);
+    (0..scene.clusters.len())
+        .filter(move |&k| !box_outside(&vp, scene.clusters[k].min, scene.clusters[k].max))
+}
+
+/// The movers' index range (both sides seen), if there are movers.
+fn movers(scene: &SceneGpu) -> Option<(Cull, std::ops::Range<u32>)> {
+    let static_end = scene.clusters.last().map_or(0, |c| c.indices.end);
+    (static_end < scene.index_count).then_some((Cull::None, static_end..scene.index_count))
+}
+
+impl TriangleLists {
+    fn new(ctx: &GpuContext) -> Self {
+        let layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("triangle cull"),
+                entries: &[
+                    storage_entry(0, Read),
+                    storage_entry(1, Read),
+                    storage_entry(2, Read),
+                    storage_entry(3, Read),
+                    storage_entry(4, Read),
+                    storage_entry(5, ReadWrite),
+                    storage_entry(6, ReadWrite),
+                    storage_entry(7, ReadWrite),
+                    storage_entry(9, ReadWrite),
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 8,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Buffer {
+                            ty: wgpu::BufferBindingType::Uniform,
+                            has_dynamic_offset: false,
+                            min_binding_size: wgpu::BufferSize::new(16),
+                        },
+                        count: None,
+                    },
+                ],
+            });
+        let module = ctx.shader(
+            "triangle cull",
+            &[include_str!("../../shaders/triangle_cull.wgsl")],
+        );
+        let buffer = |label: &str, usage: wgpu::BufferUsages| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: 16,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | usage,
+                mapped_at_creation: false,
+            })
+        };
+        TriangleLists {
+            cull: ctx.compute_pipeline_entry("triangle cull", &module, &[&layout], "cull"),
+            compact: ctx.compute_pipeline_entry("triangle compact", &module, &[&layout], "compact"),
+            layout,
+            pairs: buffer("triangle cull pairs", wgpu::BufferUsages::empty()),
+            kept: buffer("triangle cull kept", wgpu::BufferUsages::empty()),
+            indices: buffer("triangle lists", wgpu::BufferUsages::INDEX),
+            args: buffer("triangle list draws", wgpu::BufferUsages::INDIRECT),
+            count: ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("triangle cull pair count"),
+                size: 16,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            pair_count: 0,
+        }
+    }
+
+    /// Bytes of the views' index lists and the pass's records (what culling holds).
+    fn bytes(&self) -> u64 {
+        if self.pair_count == 0 {
+            return 0;
+        }
+        self.pairs.size() + self.kept.size() + self.indices.size() + self.args.size()
+    }
+
+    /// Plans this frame's lists for `views` (every set's, in order): a pair per view and
+    /// cluster its frustum touches, each view's list as long as those clusters' indices,
+    /// and each view's draw with no indices until the pass counts them.
+    fn upload(&mut self, ctx: &GpuContext, scene: &SceneGpu, views: &[RasterView], on: bool) {
+        self.pair_count = 0;
+        if !on || scene.clusters.is_empty() {
+            return;
+        }
+        let mut pairs: Vec<[u32; 4]> = Vec::new();
+        let mut args: Vec<[u32; 5]> = Vec::with_capacity(views.len());
+        let mut list_end = 0u32;
+        for (v, view) in views.iter().enumerate() {
+            let first_pair = pairs.len() as u32;
+            let base = list_end;
+            for k in visible_clusters(scene, view) {
+                let c = &scene.clusters[k];
+                pairs.push([v as u32, k as u32, first_pair, 0]);
+                list_end += c.indices.end - c.indices.start;
+            }
+            args.push([0, 1, base, 0, 0]);
+        }
+        // Buffers grow to the next power of two, never past what every cluster in every
+        // view would need (what the server's budget plans with).
+        let static_indices = u64::from(scene.clusters.last().map_or(0, |c| c.indices.end));
+        let n = pairs.len() as u64;
+        let lists = u64::from(list_end) * 4;
+        if lists > ctx.max_storage_binding {
+            // Larger than the adapter binds: this frame draws the clusters' ranges.
+            return;
+        }
+        let grow = |buffer: &mut wgpu::Buffer, bytes: u64, most: u64| {
+            if buffer.size() < bytes {
+                *buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("triangle lists"),
+                    size: bytes.next_power_of_two().min(most.max(bytes)),
+                    usage: buffer.usage(),
+                    mapped_at_creation: false,
+                });
+            }
+        };
+        let all = views.len() as u64;
+        let clusters = scene.clusters.len() as u64;
+        grow(&mut self.pairs, n * 16, all * clusters * 16);
+        grow(
+            &mut self.kept,
+            n * PAIR_WORDS * 4,
+            all * clusters * PAIR_WORDS * 4,
+        );
+        grow(&mut self.indices, lists, all * static_indices * 4);
+        grow(&mut self.args, all * DRAW_ARGS_BYTES, all * DRAW_ARGS_BYTES);
+        ctx.queue
+            .write_buffer(&self.pairs, 0, bytemuck::cast_slice(&pairs));
+        ctx.queue
+            .write_buffer(&self.args, 0, bytemuck::cast_slice(&args));
+        let count = [pairs.len() as u32, 0, 0, 0];
+        ctx.queue
+            .write_buffer(&self.count, 0, bytemuck::cast_slice(&count));
+        self.pair_count = pairs.len() as u32;
+    }
+
+    /// Records the two passes over every view of the frame.
+    fn add_passes(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &SceneGpu,
+        views: &wgpu::Buffer,
+        ts: &Timestamps,
+    ) {
+        if self.pair_count == 0 {
+            return;
+        }
+        let buffers = [
+            views,
+            &scene.vertices,
+            &scene.indices,
+            &scene.cluster_table,
+            &self.pairs,
+            &self.kept,
+            &self.indices,
+            &self.args,
+        ];
+        // Then binding 8, the uniform pair count, and 9, the frame's counters.
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .chain([&&self.count, &&scene.counters])
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("triangle cull"),
+            layout: &self.layout,
+            entries: &entries,
+        });
+        // The pairs as a 2-D grid of workgroups (the shader reads its pair as x + y·nx).
+        let x = self.pair_count.min(32768);
+        let groups = [x, self.pair_count.div_ceil(x), 1];
+        for pipeline in [&self.cull, &self.compact] {
+            super::dispatch(enc, ts, Stage::GBuffer, pipeline, &[&bg], groups);
+        }
+    }
 }
 
 impl GBuffer {
@@ -190,6 +428,10 @@ impl GBuffer {
             layout,
             uniforms: Self::uniform_buffer(ctx, 16),
             capacity: 16,
+            lists: (ctx.has_subgroups && ctx.adapter_info.subgroup_min_size >= 8)
+                .then(|| TriangleLists::new(ctx)),
+            in_clusters: 0,
+            mover_triangles: 0,
         }
     }
 
@@ -197,14 +439,34 @@ impl GBuffer {
         ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("gbuffer views"),
             size: VIEW_STRIDE * n as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::UNIFORM
+                | wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         })
     }
 
     /// Writes every viewer's raster view of this frame, all sets one after another
-    /// (before any set's passes are recorded).
-    pub(crate) fn upload(&mut self, ctx: &GpuContext, views: &[RasterView]) {
+    /// (before any set's passes are recorded), and with `triangle_cull` plans the
+    /// views' triangle lists.
+    pub(crate) fn upload(
+        &mut self,
+        ctx: &GpuContext,
+        scene: &SceneGpu,
+        views: &[RasterView],
+        triangle_cull: bool,
+    ) {
+        if let Some(lists) = &mut self.lists {
+            lists.upload(ctx, scene, views, triangle_cull);
+        }
+        let movers = movers(scene).map_or(0, |(_, r)| u64::from(r.end - r.start) / 3);
+        self.mover_triangles = movers * views.len() as u64;
+        self.in_clusters = self.mover_triangles
+            + views
+                .iter()
+                .flat_map(|v| visible_clusters(scene, v))
+                .map(|k| u64::from(scene.clusters[k].indices.len() as u32) / 3)
+                .sum::<u64>();
         if views.len() > self.capacity {
             self.capacity = views.len().next_power_of_two();
             self.uniforms = Self::uniform_buffer(ctx, self.capacity);
@@ -216,6 +478,37 @@ impl GBuffer {
                 .copy_from_slice(bytemuck::bytes_of(rv));
         }
         ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
+    }
+
+    /// Records the triangle culling of every view of the frame (before any set's raster).
+    pub(crate) fn add_culling(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &SceneGpu,
+        ts: &Timestamps,
+    ) {
+        if let Some(lists) = &self.lists {
+            lists.add_passes(ctx, enc, scene, &self.uniforms, ts);
+        }
+    }
+
+    /// (triangles drawn, triangles in the clusters the views' frustums touch) this
+    /// frame, summed over views, movers included; `kept` is the culling pass's count
+    /// of the static triangles it kept (`C_RASTER_TRIANGLES`).
+    pub(crate) fn raster_triangles(&self, kept: u64) -> (u64, u64) {
+        let culled = self.lists.as_ref().is_some_and(|l| l.pair_count > 0);
+        let drawn = if culled {
+            kept + self.mover_triangles
+        } else {
+            self.in_clusters
+        };
+        (drawn, self.in_clusters)
+    }
+
+    /// Bytes the views' triangle lists hold this frame (0 without `triangle_cull`).
+    pub(crate) fn list_bytes(&self) -> u64 {
+        self.lists.as_ref().map_or(0, TriangleLists::bytes)
     }
 
     /// Records one render pass per viewer of `set` into its layer of the G-buffer
@@ -296,6 +589,18 @@ impl GBuffer {
             pass.set_bind_group(0, &bg, &[(first as u32 + i) * VIEW_STRIDE as u32]);
             pass.set_vertex_buffer(0, scene.vertices.slice(..));
             pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
+            if let Some(lists) = self.lists.as_ref().filter(|l| l.pair_count > 0) {
+                // The view's culled list (its sides already culled), then the movers.
+                pass.set_pipeline(&self.pipelines[Cull::None as usize]);
+                pass.set_index_buffer(lists.indices.slice(..), wgpu::IndexFormat::Uint32);
+                let at = (first as u64 + u64::from(i)) * DRAW_ARGS_BYTES;
+                pass.draw_indexed_indirect(&lists.args, at);
+                if let Some((_, range)) = movers(scene) {
+                    pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(range, 0, 0..1);
+                }
+                continue;
+            }
             let mut bound = None;
             for (cull, range) in visible_ranges(scene, &views[i as usize]) {
                 if bound != Some(cull) {

@@ -28,7 +28,7 @@ pub(crate) const FLAG_GRID_MEDIA: u32 = 65536;
 pub(crate) const FLAG_GRID_MEDIA_MOVES: u32 = 131072;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
-pub(crate) const COUNTERS: usize = 12;
+pub(crate) const COUNTERS: usize = 13;
 pub(crate) const C_GRID_RAYS: usize = 0;
 pub(crate) const C_FRUSTUM_RAYS: usize = 1;
 pub(crate) const C_LIGHTING_RAYS: usize = 2;
@@ -41,6 +41,7 @@ pub(crate) const C_TRANSMITTANCE_NODES: usize = 8;
 pub(crate) const C_LAYER_BRICKS: usize = 9;
 pub(crate) const C_LAYER_NODES: usize = 10;
 pub(crate) const C_GRID_MEDIA_VOXELS: usize = 11;
+pub(crate) const C_RASTER_TRIANGLES: usize = 12;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]

@@ -36,6 +36,7 @@ mod viewer_volumes;
 mod volume_integration;
 mod world;
 
+pub use gbuffer::triangle_list_bytes_per_view;
 pub use gpu_types::ParticleGpu;
 pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub(crate) use scene_gpu::particle_capacity;
@@ -300,6 +301,7 @@ impl Renderer {
         let mut f = FrameRecorder::new(&ctx, sets);
         f.enc.clear_buffer(&world.gpu.counters, 0, None);
         // The frame, top to bottom: one line per stage, for the world or every set.
+        stages.gbuffer.add_culling(&ctx, &mut f.enc, &world.gpu, ts);
         f.each_set(Stage::GBuffer, |e, s| {
             stages.gbuffer.add_passes(&ctx, e, &world.gpu, s, ts)
         });
@@ -403,7 +405,9 @@ impl Renderer {
             .values()
             .flat_map(|s| s.raster_views.iter().copied())
             .collect();
-        self.stages.gbuffer.upload(&w.ctx, &rasters);
+        self.stages
+            .gbuffer
+            .upload(&w.ctx, &w.gpu, &rasters, w.settings.triangle_cull);
         w.write_views(frame, &views)
     }
 
@@ -438,6 +442,11 @@ impl Renderer {
             stage_ms,
             frame_ms,
             dispatches,
+            triangle_list_bytes: self.stages.gbuffer.list_bytes(),
+            raster_triangles: self
+                .stages
+                .gbuffer
+                .raster_triangles(u64::from(bytes.counters[C_RASTER_TRIANGLES])),
         });
         let froxels_written = world.has_media();
         for set in self.sets.values_mut() {

@@ -24,7 +24,7 @@ fn raster_vertices(mesh: &TriangleMesh) -> Vec<[u32; 4]> {
 
 /// Triangles per raster cluster: small enough that a viewer's frustum rejects most of a
 /// scene it does not see, large enough that a frame issues few draws.
-const CLUSTER_TRIANGLES: usize = 1024;
+pub(crate) const CLUSTER_TRIANGLES: usize = 1024;
 
 /// A run of static triangles close together in space, culled as one box.
 #[derive(Debug, Clone)]
@@ -127,6 +127,9 @@ pub(crate) struct SceneGpu {
     pub index_count: u32,
     /// The static triangles' clusters, in index order; the movers' indices follow them.
     pub clusters: Vec<RasterCluster>,
+    /// The clusters for the triangle culling pass (shaders/triangle_cull.wgsl): first
+    /// index, index count, cull, and the static indices in all.
+    pub cluster_table: wgpu::Buffer,
     /// (name, bytes) of every shared scene buffer.
     pub memory: Vec<(&'static str, u64)>,
     views_capacity: usize,
@@ -313,6 +316,16 @@ impl SceneGpu {
             wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
         );
         let indices = ctx.storage_init("indices", &idx, wgpu::BufferUsages::INDEX);
+        let static_indices = clusters.last().map_or(0, |c| c.indices.end);
+        let table: Vec<[u32; 4]> = clusters
+            .iter()
+            .map(|c| {
+                let n = c.indices.end - c.indices.start;
+                [c.indices.start, n, c.cull as u32, static_indices]
+            })
+            .collect();
+        let cluster_table =
+            ctx.storage_init("raster clusters", &table, wgpu::BufferUsages::empty());
 
         let mut memory = vec![
             ("bvh_nodes", nodes.size()),
@@ -398,6 +411,7 @@ impl SceneGpu {
             indices,
             index_count: idx.len() as u32,
             clusters,
+            cluster_table,
             memory,
             views_capacity,
             lights,

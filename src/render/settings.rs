@@ -303,6 +303,19 @@ settings! {
     // Reports from before a setting existed read it as off (`serde(default)`).
     #[serde(default)]
     stereo_head: bool = false;
+
+    /// The G-buffer draws, per view, only the triangles the raster would make fragments
+    /// of: a compute pass drops those outside a clip plane, the back faces of one-sided
+    /// meshes and those whose screen box holds no pixel centre, and writes the rest, in
+    /// order, into the view's index list (off: each view draws every triangle of the
+    /// clusters its frustum touches).
+    ///
+    /// The picture is the same; lavapipe pays for every triangle it sets up, and at
+    /// 320×180 half of Sponza's triangles in a view fall between pixel centres
+    /// (docs/decisions.md, "G-buffer: per-view triangle culling").
+    // Reports from before a setting existed read it as off (`serde(default)`).
+    #[serde(default)]
+    triangle_cull: bool = true;
 }
 
 // What reports from before these settings existed read as (and their defaults).

@@ -116,6 +116,15 @@ pub struct FrameStats {
     /// every viewer, in the grid pass; 0 without it).
     #[serde(default)]
     pub grid_media_voxels: u64,
+    /// Triangles the G-buffer drew this frame, summed over views, movers included: with
+    /// `triangle_cull` those the culling pass kept, else every triangle of the clusters
+    /// each view's frustum touches.
+    #[serde(default)]
+    pub raster_triangles: u64,
+    /// Triangles of the clusters each view's frustum touches, summed over views, movers
+    /// included (what the views draw without `triangle_cull`).
+    #[serde(default)]
+    pub raster_triangles_in_clusters: u64,
     /// World media layer: bricks holding media after this frame (the pool grows for the
     /// next frame when the bricks seen did not fit).
     #[serde(default)]
@@ -160,6 +169,11 @@ pub(super) struct StatsInput<'a> {
     pub stage_ms: Vec<StageTiming>,
     pub frame_ms: f64,
     pub dispatches: Vec<(&'static str, [u32; 3])>,
+    /// Bytes of the G-buffer's per-view triangle lists (`triangle_cull`; 0 without).
+    pub triangle_list_bytes: u64,
+    /// (triangles the G-buffer drew, triangles in the clusters the frustums touched),
+    /// summed over views (`GBuffer::raster_triangles`).
+    pub raster_triangles: (u64, u64),
 }
 
 pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
@@ -189,11 +203,19 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
     if w.shadow_maps.bytes() > 0 {
         shared.push((Stage::ShadowMaps.name().into(), w.shadow_maps.bytes()));
     }
+    // The triangle lists are one buffer over every view of every set.
+    let views: u64 = i.sets.iter().map(|v| v.count as u64).sum();
+    let lists_per_view = i.triangle_list_bytes / views.max(1);
     let per_viewer_of = |v: &ViewerVolumes| -> Vec<(String, u64)> {
-        v.memory_per_viewer()
+        let mut list: Vec<(String, u64)> = v
+            .memory_per_viewer()
             .into_iter()
             .map(|(n, b)| (n.to_string(), b))
-            .collect()
+            .collect();
+        if lists_per_view > 0 {
+            list.push(("triangle_lists".into(), lists_per_view));
+        }
+        list
     };
     let total_of = |list: &[(String, u64)]| list.iter().map(|(_, b)| b).sum::<u64>();
     let first = i.sets[0];
@@ -231,6 +253,8 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         layer_bricks_filled: c(C_LAYER_NODES) / super::media_layer::BRICK_NODES,
         layer_nodes_filled: c(C_LAYER_NODES),
         grid_media_voxels: c(C_GRID_MEDIA_VOXELS),
+        raster_triangles: i.raster_triangles.0,
+        raster_triangles_in_clusters: i.raster_triangles.1,
         layer_bricks_in_use,
         layer_pool_bricks: layer.map_or(0, |l| u64::from(l.plan().capacity)),
         layer_bytes_in_use: layer.map_or(0, |l| layer_bricks_in_use * l.plan().brick_bytes()),

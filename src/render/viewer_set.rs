@@ -298,7 +298,8 @@ impl ViewerSet {
             self.ids.push(v.id);
             cameras.push(*c);
         }
-        self.raster_views = RasterView::for_cameras(&cameras, aspect, near, far);
+        self.raster_views =
+            RasterView::for_cameras(&cameras, (layout.width, layout.height), near, far);
         let owners = self.volume_views;
         self.vol.groups.columns[2] = owners;
         self.vol.groups.frustum[2] = owners;

@@ -11,6 +11,8 @@
 
 use super::validate::{ProtocolError, SessionSpec, SpecLimits};
 use crate::protocol::ErrorCode;
+#[cfg(doc)]
+use crate::render::triangle_list_bytes_per_view;
 use crate::render::{largest_binding, viewer_memory_bytes, Settings};
 use std::collections::BTreeMap;
 
@@ -28,6 +30,9 @@ pub(crate) struct Budget {
     /// The scene's smoke particle capacity (0 without emitters): every view holds a proxy
     /// list of that many and a smoke layer.
     pub(crate) smoke_particles: u32,
+    /// What the G-buffer's triangle culling holds per view at most
+    /// ([`triangle_list_bytes_per_view`]; 0 with it off).
+    pub(crate) triangle_lists_per_view: u64,
 }
 
 /// What is rendered now: views per view size.
@@ -74,6 +79,7 @@ impl Budget {
             .iter()
             .map(|(&(sw, sh), &n)| {
                 viewer_memory_bytes(&self.settings, n as usize, sw, sh, self.smoke_particles)
+                    + n * self.triangle_lists_per_view
             })
             .sum();
         if memory > self.max_view_memory_bytes {
@@ -164,6 +170,7 @@ mod tests {
             max_pixels_per_frame: u64::MAX,
             max_view_memory_bytes: u64::MAX,
             smoke_particles: 0,
+            triangle_lists_per_view: 0,
         };
         // The numbers: five 1920×1080 views need 158.2 MiB of froxels.
         let (label, bytes) = largest_binding(&budget.settings, 5, 1920, 1080);
@@ -201,6 +208,7 @@ mod tests {
             max_pixels_per_frame: 1280 * 720 * 3 / 2,
             max_view_memory_bytes: u64::MAX,
             smoke_particles: 0,
+            triangle_lists_per_view: 0,
         };
         let mut used = Usage::default();
         used.add(&mono(1280, 720));
@@ -228,6 +236,7 @@ mod tests {
             max_pixels_per_frame: u64::MAX,
             max_view_memory_bytes: one * 5 / 2,
             smoke_particles: 0,
+            triangle_lists_per_view: 0,
         };
         let mut used = Usage::default();
         used.add(&mono(1280, 720));

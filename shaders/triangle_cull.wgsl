@@ -1,0 +1,171 @@
+// Per-view triangle culling before the G-buffer raster (`triangle_cull`): of every
+// (view, cluster) pair whose cluster box the view's frustum touches, the triangles the
+// raster would draw nothing of are dropped — outside one clip plane, back faces of
+// one-sided meshes, and triangles whose screen box holds no pixel centre (they cover
+// no sample, so the raster makes no fragment of them) — and the rest are written, in
+// their order, into the view's own index list, drawn with one indirect draw. Two passes:
+// `cull` marks and counts each pair's triangles, `compact` writes them after the counts
+// of the view's earlier pairs. The order is the scene's, so the picture is the one the
+// unculled draw gives, depth ties included.
+
+// One view's raster uniforms (src/render/gbuffer.rs, `RasterView`), 256 bytes apart.
+struct RasterView {
+    view_proj: mat4x4f,
+    position: vec3f,
+    _pad0: f32,
+    forward: vec3f,
+    _pad1: f32,
+    size: vec2f,
+    _pad2: vec2f,
+    _pad3: array<vec4f, 9>,
+}
+
+@group(0) @binding(0) var<storage, read> views: array<RasterView>;
+// Raster vertices: position bits and packed albedo (src/render/scene_gpu.rs).
+@group(0) @binding(1) var<storage, read> vertices: array<vec4u>;
+@group(0) @binding(2) var<storage, read> indices: array<u32>;
+// Per cluster: first index, index count, cull (0 none, 1 back faces, 2 front faces), and
+// the static indices in all.
+@group(0) @binding(3) var<storage, read> clusters: array<vec4u>;
+// Per pair: view, cluster, the view's first pair, 0. A view's pairs are consecutive.
+@group(0) @binding(4) var<storage, read> pairs: array<vec4u>;
+// Per pair, PAIR_WORDS words: the kept triangles' count, then a 16-bit mask per lane.
+@group(0) @binding(5) var<storage, read_write> kept: array<u32>;
+@group(0) @binding(6) var<storage, read_write> out_indices: array<u32>;
+// Per view: DrawIndexedIndirect (index count, instances, first index, base vertex,
+// first instance).
+@group(0) @binding(7) var<storage, read_write> args: array<u32>;
+// This frame's pairs (x; the pair buffer is longer).
+@group(0) @binding(8) var<uniform> pair_count: vec4u;
+// The frame's counters (common.wgsl's C_*): the triangles kept, summed over views.
+@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>>;
+const C_RASTER_TRIANGLES: u32 = 12u;
+
+// One subgroup per pair, no workgroup barrier (llvmpipe runs barrier-free compute as
+// straight SIMD loops): LANES lanes, each PER_LANE consecutive triangles of the pair's
+// cluster (LANES × PER_LANE = the 1024 of a cluster). Needs subgroups of LANES or more.
+const LANES: u32 = 8u;
+const PER_LANE: u32 = 128u;
+const MASK_WORDS: u32 = 4u; // PER_LANE / 32
+const PAIR_WORDS: u32 = 33u; // the count, then MASK_WORDS per lane
+const CULL_BACK: u32 = 1u;
+const CULL_FRONT: u32 = 2u;
+
+fn pair_index(wg: vec3u, n: vec3u) -> u32 {
+    return wg.x + wg.y * n.x;
+}
+
+fn corner(view_proj: mat4x4f, i: u32) -> vec4f {
+    return view_proj * vec4f(bitcast<vec3f>(vertices[i].xyz), 1.0);
+}
+
+// Whether the raster can draw any fragment of the triangle of vertices (ia, ib, ic)
+// under `view_proj` in a view of `size` pixels with cull mode `cull`. Conservative: a triangle reaching behind the eye plane is
+// kept (the raster clips it), and the screen box grows by 1/64 pixel for the raster's
+// snapping of vertices to its sub-pixel grid.
+fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) -> bool {
+    let a = corner(view_proj, ia);
+    let b = corner(view_proj, ib);
+    let c = corner(view_proj, ic);
+    let x = vec3f(a.x, b.x, c.x);
+    let y = vec3f(a.y, b.y, c.y);
+    let z = vec3f(a.z, b.z, c.z);
+    let w = vec3f(a.w, b.w, c.w);
+    if all(x < -w) || all(x > w) || all(y < -w) || all(y > w) || all(z < vec3f(0.0)) || all(z > w) {
+        return false;
+    }
+    if any(w <= vec3f(1e-6)) {
+        return true;
+    }
+    let sa = (vec2f(a.x, -a.y) / a.w * 0.5 + 0.5) * size;
+    let sb = (vec2f(b.x, -b.y) / b.w * 0.5 + 0.5) * size;
+    let sc = (vec2f(c.x, -c.y) / c.w * 0.5 + 0.5) * size;
+    let lo = min(sa, min(sb, sc)) - 1.0 / 64.0;
+    let hi = max(sa, max(sb, sc)) + 1.0 / 64.0;
+    // The pixel centres k + 0.5 in [lo, hi], along each axis.
+    if any(ceil(lo - 0.5) > floor(hi - 0.5)) {
+        return false;
+    }
+    // Counter-clockwise on screen (y up) is the front; y runs down here.
+    let e1 = sb - sa;
+    let e2 = sc - sa;
+    let area = e1.x * e2.y - e1.y * e2.x;
+    if (cull == CULL_BACK && area > 0.0) || (cull == CULL_FRONT && area < 0.0) {
+        return false;
+    }
+    return true;
+}
+
+@compute @workgroup_size(8)
+fn cull(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @builtin(local_invocation_index) lane: u32) {
+    let p = pair_index(wg, n);
+    if p >= pair_count.x {
+        return;
+    }
+    let pair = pairs[p];
+    let view_proj = views[pair.x].view_proj;
+    let size = views[pair.x].size;
+    let c = clusters[pair.y];
+    let triangles = c.y / 3u;
+    var kept_here = 0u;
+    for (var w = 0u; w < MASK_WORDS; w++) {
+        var bits = 0u;
+        for (var k = 0u; k < 32u; k++) {
+            let t = lane * PER_LANE + w * 32u + k;
+            if t < triangles {
+                let i = c.x + 3u * t;
+                if drawn(view_proj, size, indices[i], indices[i + 1u], indices[i + 2u], c.z) {
+                    bits |= 1u << k;
+                }
+            }
+        }
+        kept[p * PAIR_WORDS + 1u + lane * MASK_WORDS + w] = bits;
+        kept_here += countOneBits(bits);
+    }
+    let total = subgroupAdd(kept_here);
+    if lane == 0u {
+        kept[p * PAIR_WORDS] = total;
+        atomicAdd(&counters[C_RASTER_TRIANGLES], total);
+    }
+}
+
+@compute @workgroup_size(8)
+fn compact(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @builtin(local_invocation_index) lane: u32) {
+    let p = pair_index(wg, n);
+    if p >= pair_count.x {
+        return;
+    }
+    let pair = pairs[p];
+    let c = clusters[pair.y];
+    // Triangles kept by the view's earlier pairs.
+    var before = 0u;
+    for (var q = pair.z + lane; q < p; q += LANES) {
+        before += kept[q * PAIR_WORDS];
+    }
+    let earlier = subgroupAdd(before);
+    var here = 0u;
+    for (var w = 0u; w < MASK_WORDS; w++) {
+        here += countOneBits(kept[p * PAIR_WORDS + 1u + lane * MASK_WORDS + w]);
+    }
+    // This lane's first slot: after the earlier pairs and this pair's lower lanes.
+    var at = earlier + subgroupExclusiveAdd(here);
+    let end = earlier + subgroupAdd(here);
+    let base = args[5u * pair.x + 2u];
+    for (var w = 0u; w < MASK_WORDS; w++) {
+        var bits = kept[p * PAIR_WORDS + 1u + lane * MASK_WORDS + w];
+        while bits != 0u {
+            let k = firstTrailingBit(bits);
+            bits &= bits - 1u;
+            let i = c.x + 3u * (lane * PER_LANE + w * 32u + k);
+            out_indices[base + 3u * at] = indices[i];
+            out_indices[base + 3u * at + 1u] = indices[i + 1u];
+            out_indices[base + 3u * at + 2u] = indices[i + 2u];
+            at += 1u;
+        }
+    }
+    // The view's last pair knows its total: the draw's index count.
+    let last = p + 1u == pair_count.x || pairs[p + 1u].x != pair.x;
+    if lane == 0u && last {
+        args[5u * pair.x] = 3u * end;
+    }
+}
