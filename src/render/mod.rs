@@ -31,12 +31,12 @@ mod smoke_view;
 mod stage;
 mod stats;
 mod target;
+mod triangle_cull;
 mod viewer_set;
 mod viewer_volumes;
 mod volume_integration;
 mod world;
 
-pub use gbuffer::triangle_list_bytes_per_view;
 pub use gpu_types::ParticleGpu;
 pub use ray_query::{trace_shadow_rays, ShadowRayQuery};
 pub(crate) use scene_gpu::particle_capacity;
@@ -47,6 +47,7 @@ pub use smoke_shadows::{SmokeMapKind, SmokeShadowMap, MAX_CROSSINGS as SMOKE_MAX
 pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
 pub use target::{stereo_eyes, FrameOutput, FrameTarget, TargetView, TargetsOutput};
+pub use triangle_cull::triangle_list_bytes_per_view;
 pub use viewer_set::ViewerId;
 pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
 pub use world::{Lookup, World};
