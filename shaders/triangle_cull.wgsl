@@ -60,9 +60,9 @@ fn corner(view_proj: mat4x4f, i: u32) -> vec4f {
 }
 
 // Whether the raster can draw any fragment of the triangle of vertices (ia, ib, ic)
-// under `view_proj` in a view of `size` pixels with cull mode `cull`. Conservative: a triangle reaching behind the eye plane is
-// kept (the raster clips it), and the screen box grows by 1/64 pixel for the raster's
-// snapping of vertices to its sub-pixel grid.
+// under `view_proj` in a view of `size` pixels with cull mode `cull`. Conservative: a
+// triangle reaching behind the eye plane skips the pixel-centre test (the raster clips
+// it), and the screen box grows by 1/64 pixel for the raster's sub-pixel snapping.
 fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) -> bool {
     let a = corner(view_proj, ia);
     let b = corner(view_proj, ib);
@@ -72,6 +72,14 @@ fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) 
     let z = vec3f(a.z, b.z, c.z);
     let w = vec3f(a.w, b.w, c.w);
     if all(x < -w) || all(x > w) || all(y < -w) || all(y > w) || all(z < vec3f(0.0)) || all(z > w) {
+        return false;
+    }
+    // The side the eye sees: the sign of det(x, y, w) (Olano and Greer's homogeneous
+    // rasterisation), right for corners behind the eye too, which the raster clips away:
+    // the part it keeps winds the same way. With every w > 0 it is the sign of the
+    // projected area, counter-clockwise on screen (y up) the front.
+    let det = dot(vec3f(a.x, a.y, a.w), cross(vec3f(b.x, b.y, b.w), vec3f(c.x, c.y, c.w)));
+    if (cull == CULL_BACK && det < 0.0) || (cull == CULL_FRONT && det > 0.0) {
         return false;
     }
     if any(w <= vec3f(1e-6)) {
@@ -84,13 +92,6 @@ fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) 
     let hi = max(sa, max(sb, sc)) + 1.0 / 64.0;
     // The pixel centres k + 0.5 in [lo, hi], along each axis.
     if any(ceil(lo - 0.5) > floor(hi - 0.5)) {
-        return false;
-    }
-    // Counter-clockwise on screen (y up) is the front; y runs down here.
-    let e1 = sb - sa;
-    let e2 = sc - sa;
-    let area = e1.x * e2.y - e1.y * e2.x;
-    if (cull == CULL_BACK && area > 0.0) || (cull == CULL_FRONT && area < 0.0) {
         return false;
     }
     return true;
