@@ -1,13 +1,6 @@
 // G-buffer raster, one pass per viewer: world position + view depth, flat normal, albedo.
 
-struct RasterView {
-    view_proj: mat4x4f,
-    position: vec3f,
-    _pad0: f32,
-    forward: vec3f,
-    _pad1: f32,
-}
-
+// RasterView: shaders/raster_view.wgsl.
 @group(0) @binding(0) var<uniform> view: RasterView;
 
 struct VsOut {

@@ -8,18 +8,7 @@
 // of the view's earlier pairs. The order is the scene's, so the picture is the one the
 // unculled draw gives, depth ties included.
 
-// One view's raster uniforms (src/render/gbuffer.rs, `RasterView`), 256 bytes apart.
-struct RasterView {
-    view_proj: mat4x4f,
-    position: vec3f,
-    _pad0: f32,
-    forward: vec3f,
-    _pad1: f32,
-    size: vec2f,
-    _pad2: vec2f,
-    _pad3: array<vec4f, 9>,
-}
-
+// RasterView: shaders/raster_view.wgsl.
 @group(0) @binding(0) var<storage, read> views: array<RasterView>;
 // Raster vertices: position bits and packed albedo (src/render/scene_gpu.rs).
 @group(0) @binding(1) var<storage, read> vertices: array<vec4u>;

@@ -17,7 +17,14 @@ pub(crate) struct RasterView {
     forward: [f32; 4],
     /// Pixels (width, height, 0, 0).
     size: [f32; 4],
+    /// To `VIEW_STRIDE` bytes, the stride of the views in their buffer.
+    _pad: [[f32; 4]; 9],
 }
+
+/// shaders/raster_view.wgsl, prepended to the raster's and the culling's shaders.
+pub(crate) const RASTER_VIEW_WGSL: &str = include_str!("../../shaders/raster_view.wgsl");
+
+const _: () = assert!(std::mem::size_of::<RasterView>() as u64 == VIEW_STRIDE);
 
 impl RasterView {
     /// One raster view per camera of `width`×`height` pixels, sharing the clip range.
@@ -35,6 +42,7 @@ impl RasterView {
                 position: c.position.extend(0.0).to_array(),
                 forward: c.forward.extend(0.0).to_array(),
                 size: [width as f32, height as f32, 0.0, 0.0],
+                _pad: [[0.0; 4]; 9],
             })
             .collect()
     }
@@ -161,7 +169,10 @@ impl GBuffer {
             wgpu::ShaderStages::VERTEX_FRAGMENT,
             std::mem::size_of::<RasterView>() as u64,
         );
-        let module = ctx.shader("gbuffer", &[include_str!("../../shaders/gbuffer.wgsl")]);
+        let module = ctx.shader(
+            "gbuffer",
+            &[RASTER_VIEW_WGSL, include_str!("../../shaders/gbuffer.wgsl")],
+        );
         let pl = ctx
             .device
             .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -263,13 +274,9 @@ impl GBuffer {
             self.capacity = views.len().next_power_of_two();
             self.uniforms = Self::uniform_buffer(ctx, self.capacity);
         }
-        let mut bytes = vec![0u8; VIEW_STRIDE as usize * views.len()];
-        for (i, rv) in views.iter().enumerate() {
-            let at = i * VIEW_STRIDE as usize;
-            bytes[at..at + std::mem::size_of::<RasterView>()]
-                .copy_from_slice(bytemuck::bytes_of(rv));
-        }
-        ctx.queue.write_buffer(&self.uniforms, 0, &bytes);
+        // A view is VIEW_STRIDE bytes: the views lie at the stride as they are.
+        ctx.queue
+            .write_buffer(&self.uniforms, 0, bytemuck::cast_slice(views));
     }
 
     /// Records the triangle culling of every view of the frame (before any set's raster).

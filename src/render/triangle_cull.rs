@@ -2,7 +2,7 @@
 //! `shaders/triangle_cull.wgsl`: every view's index list of the triangles the raster can
 //! make a fragment of, and its indirect draw (`GBuffer` draws them).
 
-use super::gbuffer::{visible_clusters, RasterView};
+use super::gbuffer::{visible_clusters, RasterView, RASTER_VIEW_WGSL};
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::{storage_entry, GpuContext};
@@ -72,7 +72,10 @@ impl TriangleLists {
             });
         let module = ctx.shader(
             "triangle cull",
-            &[include_str!("../../shaders/triangle_cull.wgsl")],
+            &[
+                RASTER_VIEW_WGSL,
+                include_str!("../../shaders/triangle_cull.wgsl"),
+            ],
         );
         let buffer = |label: &str, usage: wgpu::BufferUsages| {
             ctx.device.create_buffer(&wgpu::BufferDescriptor {
