@@ -13,8 +13,7 @@
 // Raster vertices: position bits and packed albedo (src/render/scene_gpu.rs).
 @group(0) @binding(1) var<storage, read> vertices: array<vec4u>;
 @group(0) @binding(2) var<storage, read> indices: array<u32>;
-// Per cluster: first index, index count, cull (0 none, 1 back faces, 2 front faces), and
-// the static indices in all.
+// Per cluster: first index, index count, cull (0 none, 1 back faces, 2 front faces), 0.
 @group(0) @binding(3) var<storage, read> clusters: array<vec4u>;
 // Per pair: view, cluster, the view's first pair, 0. A view's pairs are consecutive.
 @group(0) @binding(4) var<storage, read> pairs: array<vec4u>;

@@ -259,16 +259,21 @@ impl GBuffer {
         views: &[RasterView],
         triangle_cull: bool,
     ) {
+        // Each view's clusters, found once: the culling's pairs and the stats read them.
+        let visible: Vec<Vec<usize>> = views
+            .iter()
+            .map(|v| visible_clusters(scene, v).collect())
+            .collect();
         if let Some(lists) = &mut self.lists {
-            lists.upload(ctx, scene, views, triangle_cull);
+            lists.upload(ctx, scene, &visible, triangle_cull);
         }
         let movers = movers(scene).map_or(0, |(_, r)| u64::from(r.end - r.start) / 3);
         self.mover_triangles = movers * views.len() as u64;
         self.in_clusters = self.mover_triangles
-            + views
+            + visible
                 .iter()
-                .flat_map(|v| visible_clusters(scene, v))
-                .map(|k| u64::from(scene.clusters[k].indices.len() as u32) / 3)
+                .flatten()
+                .map(|&k| u64::from(scene.clusters[k].indices.len() as u32) / 3)
                 .sum::<u64>();
         if views.len() > self.capacity {
             self.capacity = views.len().next_power_of_two();

@@ -128,7 +128,7 @@ pub(crate) struct SceneGpu {
     /// The static triangles' clusters, in index order; the movers' indices follow them.
     pub clusters: Vec<RasterCluster>,
     /// The clusters for the triangle culling pass (shaders/triangle_cull.wgsl): first
-    /// index, index count, cull, and the static indices in all.
+    /// index, index count, cull, 0.
     pub cluster_table: wgpu::Buffer,
     /// (name, bytes) of every shared scene buffer.
     pub memory: Vec<(&'static str, u64)>,
@@ -316,12 +316,11 @@ impl SceneGpu {
             wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
         );
         let indices = ctx.storage_init("indices", &idx, wgpu::BufferUsages::INDEX);
-        let static_indices = clusters.last().map_or(0, |c| c.indices.end);
         let table: Vec<[u32; 4]> = clusters
             .iter()
             .map(|c| {
                 let n = c.indices.end - c.indices.start;
-                [c.indices.start, n, c.cull as u32, static_indices]
+                [c.indices.start, n, c.cull as u32, 0]
             })
             .collect();
         let cluster_table =

@@ -2,7 +2,7 @@
 //! `shaders/triangle_cull.wgsl`: every view's index list of the triangles the raster can
 //! make a fragment of, and its indirect draw (`GBuffer` draws them).
 
-use super::gbuffer::{visible_clusters, RasterView, RASTER_VIEW_WGSL};
+use super::gbuffer::RASTER_VIEW_WGSL;
 use super::{scene_gpu::SceneGpu, Stage, Timestamps};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::{storage_entry, GpuContext};
@@ -111,14 +111,15 @@ impl TriangleLists {
         self.pairs.size() + self.kept.size() + self.indices.size() + self.args.size()
     }
 
-    /// Plans this frame's lists for `views` (every set's, in order): a pair per view and
-    /// cluster its frustum touches, each view's list as long as those clusters' indices,
-    /// and each view's draw with no indices until the pass counts them.
+    /// Plans this frame's lists for every set's views, in order, given the clusters each
+    /// one's frustum touches (`visible`): a pair per view and such cluster, each view's
+    /// list as long as those clusters' indices, and each view's draw with no indices until
+    /// the pass counts them.
     pub(crate) fn upload(
         &mut self,
         ctx: &GpuContext,
         scene: &SceneGpu,
-        views: &[RasterView],
+        visible: &[Vec<usize>],
         on: bool,
     ) {
         self.pair_count = 0;
@@ -126,12 +127,12 @@ impl TriangleLists {
             return;
         }
         let mut pairs: Vec<[u32; 4]> = Vec::new();
-        let mut args: Vec<[u32; 5]> = Vec::with_capacity(views.len());
+        let mut args: Vec<[u32; 5]> = Vec::with_capacity(visible.len());
         let mut list_end = 0u32;
-        for (v, view) in views.iter().enumerate() {
+        for (v, clusters) in visible.iter().enumerate() {
             let first_pair = pairs.len() as u32;
             let base = list_end;
-            for k in visible_clusters(scene, view) {
+            for &k in clusters {
                 let c = &scene.clusters[k];
                 pairs.push([v as u32, k as u32, first_pair, 0]);
                 list_end += c.indices.end - c.indices.start;
@@ -157,7 +158,7 @@ impl TriangleLists {
                 });
             }
         };
-        let all = views.len() as u64;
+        let all = visible.len() as u64;
         let clusters = scene.clusters.len() as u64;
         grow(&mut self.pairs, n * 16, all * clusters * 16);
         grow(
