@@ -3,17 +3,19 @@
 //! frames (B over A). Lavapipe's frame times drift by ±10 % between runs; frames rendered
 //! back to back drift together, so a few percent show where two separate runs cannot.
 //!
-//! `cargo run --example ab_settings -- SCENE A B [FRAMES] [HEADS] [mono]`
+//! `cargo run --example ab_settings -- SCENE A B [FRAMES] [HEADS] [mono|one-eye]`
 //!
 //! A and B are `key=value,…` over `shared`'s defaults (`-`: the defaults), as a bench
 //! `--variant` takes them. The targets are HEADS stereo sessions (320×180 per eye, eyes
 //! 6.4 cm apart) at the heads of the scene's camera path at t = 0, or HEADS mono viewers
-//! with `mono`. Two warm-up frames each; FRAMES (default 12) measured frames each.
+//! with `mono`. With `one-eye`, A renders the stereo sessions and B each session's
+//! first eye alone as a mono view (issue 16's "stereo session / one eye", paired frame
+//! by frame). Two warm-up frames each; FRAMES (default 12) measured frames each.
 //! Example: `cargo run --example ab_settings -- colonnade - stereo_head=on 20 2`.
 
 use anyhow::Context as _;
 use fogcast::gpu::GpuContext;
-use fogcast::render::{FrameTarget, Renderer, Settings};
+use fogcast::render::{stereo_eyes, FrameTarget, Renderer, Settings};
 use fogcast::scene::Scene;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -36,7 +38,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [scene_name, a, b, rest @ ..] = args.as_slice() else {
-        anyhow::bail!("usage: ab_settings SCENE A B [FRAMES] [HEADS] [mono]");
+        anyhow::bail!("usage: ab_settings SCENE A B [FRAMES] [HEADS] [mono|one-eye]");
     };
     let frames: usize = rest
         .first()
@@ -44,6 +46,7 @@ fn main() -> anyhow::Result<()> {
         .context("FRAMES")?;
     let heads: usize = rest.get(1).map_or(Ok(1), |s| s.parse()).context("HEADS")?;
     let mono = rest.get(2).is_some_and(|s| s == "mono");
+    let one_eye = rest.get(2).is_some_and(|s| s == "one-eye");
     anyhow::ensure!(
         frames > 0 && heads > 0,
         "FRAMES and HEADS must be at least 1"
@@ -52,24 +55,30 @@ fn main() -> anyhow::Result<()> {
     let scene = Arc::new(Scene::load(scene_name)?);
     let renderer = |o: &str| Renderer::new(ctx.clone(), scene.clone(), settings(o)?);
     let mut renderers = [renderer(a)?, renderer(b)?];
-    let targets: Vec<FrameTarget> = scene
-        .camera
-        .viewers(heads, 0.0)
-        .into_iter()
+    let heads = scene.camera.viewers(heads, 0.0);
+    let target = |i: usize, c, mono| {
+        if mono {
+            FrameTarget::single(i as u64, c, 320, 180)
+        } else {
+            FrameTarget::stereo(2 * i as u64, c, 0.064, 320, 180)
+        }
+    };
+    let targets: Vec<FrameTarget> = heads
+        .iter()
         .enumerate()
-        .map(|(i, c)| {
-            if mono {
-                FrameTarget::single(i as u64, c, 320, 180)
-            } else {
-                FrameTarget::stereo(2 * i as u64, c, 0.064, 320, 180)
-            }
-        })
+        .map(|(i, &c)| target(i, c, mono))
+        .collect();
+    let eyes: Vec<FrameTarget> = heads
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| target(i, stereo_eyes(c, 0.064)[0], true))
         .collect();
     // Per renderer: stage → GPU ms of each measured frame.
     let mut ms: [BTreeMap<String, Vec<f64>>; 2] = Default::default();
     for f in 0..2 * (WARMUP + frames) {
         let k = f % 2;
-        let out = renderers[k].render_targets(&targets, 0.0)?;
+        let which = if one_eye && k == 1 { &eyes } else { &targets };
+        let out = renderers[k].render_targets(which, 0.0)?;
         if f < 2 * WARMUP {
             continue;
         }

@@ -345,8 +345,13 @@ fn view_ray(v: View, pix: vec2f) -> vec3f {
 
 // The unit view ray of froxel column `xy`.
 fn froxel_ray(v: View, xy: vec2u) -> vec3f {
-    let pix = (vec2f(xy) + 0.5) * f32(v.froxel_px);
-    return view_ray(v, min(pix, vec2f(v.size) - 0.5)); // past the edge: the last pixel centre
+    return view_ray(v, froxel_pixel(v, xy));
+}
+
+// The pixel-space point froxel column `xy`'s ray goes through: its centre, or past the
+// view's edge the last pixel centre.
+fn froxel_pixel(v: View, xy: vec2u) -> vec2f {
+    return min((vec2f(xy) + 0.5) * f32(v.froxel_px), vec2f(v.size) - 0.5);
 }
 
 // The sample point of `slice` on the column's ray `dir`.

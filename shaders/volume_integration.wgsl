@@ -27,14 +27,36 @@ fn bracket(pix: f32, froxel_px: f32, size: f32, count: f32) -> vec3f {
     return vec3f(c0, c1, f);
 }
 
-// Froxel (src rgb, σt) of slice `s` at world point `p` from view `o`'s froxels: a
+// Where a column's froxels project in its partner's view `o`, slice by slice. The eyes
+// look the same way with the same projection, so a point at view depth z on the column's
+// ray, pixel `pix` in its own view, lies at pixel c + (z·(pix − c) + k) / (z + dz) in
+// `o`'s (c the views' centre; k, dz from the offset between the eyes): one reciprocal a
+// slice, where projecting the world point costs a vector's worth of dot products.
+struct PartnerProjection {
+    centred: vec2f, // pix − c
+    k: vec2f,
+    dz: f32,
+}
+
+fn partner_projection(v: View, o: View, pix: vec2f) -> PartnerProjection {
+    let d = v.position - o.position;
+    let c = 0.5 * vec2f(o.size);
+    let k = c * vec2f(dot(d, o.right) / o.tan_x, -dot(d, o.up) / o.tan_y);
+    return PartnerProjection(pix - c, k, dot(d, o.forward));
+}
+
+// `pixel_of(o, p)` for the column's point at view depth `z`.
+fn partner_pixel(o: View, pp: PartnerProjection, z: f32) -> vec2f {
+    return 0.5 * vec2f(o.size) + (z * pp.centred + pp.k) / max(z + pp.dz, o.near);
+}
+
+// Froxel (src rgb, σt) of slice `s` at pixel `pix` of view `o`'s froxels: a
 // coupled stereo eye's far slice, read from its partner (the eyes look the same way with
 // the same slices, so both froxels lie on one depth plane), bilinear between the four
-// columns whose rays bracket where `p` projects. S = src·σt and σt are interpolated, not
+// columns whose rays bracket `pix`. S = src·σt and σt are interpolated, not
 // src, so a froxel half in a medium takes half of its in-scattering. On a column's ray
 // (zero disparity) it is that froxel, exactly.
-fn partner_froxel(o: View, p: vec3f, s: u32) -> vec4f {
-    let pix = pixel_of(o, p);
+fn partner_froxel(o: View, pix: vec2f, s: u32) -> vec4f {
     let fp = f32(o.froxel_px);
     let bx = bracket(pix.x, fp, f32(o.size.x), f32(o.froxel_dims.x));
     let by = bracket(pix.y, fp, f32(o.size.y), f32(o.froxel_dims.y));
@@ -83,7 +105,9 @@ fn main(
     let o = volume_of(views[v.volume_view]);
     // A stereo head's first eye lit the head's volume: it reads it as its partner would.
     let own = select(0u, v.light_slices, volume_on_own_rays(v));
-    let dir = froxel_ray(v, gid.xy);
+    let pix = froxel_pixel(v, gid.xy);
+    let dir = view_ray(v, pix);
+    let pp = partner_projection(v, o, pix);
     let inv_cos = 1.0 / dot(dir, v.forward);
     var scattered = vec3f(0.0);
     var transmittance = 1.0;
@@ -97,7 +121,8 @@ fn main(
         if s < own {
             f = unpack_rgba16(froxels[index]);
         } else {
-            f = partner_froxel(o, froxel_point(v, dir, s), s);
+            let z = slice_depth(v, f32(s) + 0.5 + v.jitter);
+            f = partner_froxel(o, partner_pixel(o, pp, z), s);
         }
         let sigma_t = f.w;
         let tau = sigma_t * d;
