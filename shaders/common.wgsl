@@ -356,8 +356,12 @@ fn froxel_pixel(v: View, xy: vec2u) -> vec2f {
 
 // The sample point of `slice` on the column's ray `dir`.
 fn froxel_point(v: View, dir: vec3f, slice: u32) -> vec3f {
-    let z = slice_depth(v, f32(slice) + 0.5 + v.jitter);
-    return v.position + dir * (z / dot(dir, v.forward));
+    return v.position + dir * (froxel_depth(v, slice) / dot(dir, v.forward));
+}
+
+// The view depth of `slice`'s samples: its centre, moved by this frame's jitter.
+fn froxel_depth(v: View, slice: u32) -> f32 {
+    return slice_depth(v, f32(slice) + 0.5 + v.jitter);
 }
 
 // Pixel-space point (y down) where world point p projects in view `v` (p at least

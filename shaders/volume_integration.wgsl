@@ -121,8 +121,7 @@ fn main(
         if s < own {
             f = unpack_rgba16(froxels[index]);
         } else {
-            let z = slice_depth(v, f32(s) + 0.5 + v.jitter);
-            f = partner_froxel(o, partner_pixel(o, pp, z), s);
+            f = partner_froxel(o, partner_pixel(o, pp, froxel_depth(v, s)), s);
         }
         let sigma_t = f.w;
         let tau = sigma_t * d;
