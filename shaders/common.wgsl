@@ -798,26 +798,8 @@ fn light_basis(n: vec3f) -> mat2x3f {
     return mat2x3f(vec3f(1.0 + s * n.x * n.x * a, s * b, -s * n.x), vec3f(b, s + n.y * n.y * a, -n.y));
 }
 
-fn sign_not_zero(v: vec2f) -> vec2f {
-    return select(vec2f(-1.0), vec2f(1.0), v >= vec2f(0.0));
-}
-
-// Octahedral map of unit directions onto [−1, 1]² and back.
-fn oct_encode(d: vec3f) -> vec2f {
-    let n = d / (abs(d.x) + abs(d.y) + abs(d.z));
-    if n.z < 0.0 {
-        return (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
-    }
-    return n.xy;
-}
-
-fn oct_decode(e: vec2f) -> vec3f {
-    var n = vec3f(e, 1.0 - abs(e.x) - abs(e.y));
-    if n.z < 0.0 {
-        n = vec3f((1.0 - abs(n.yx)) * sign_not_zero(n.xy), n.z);
-    }
-    return normalize(n);
-}
+// oct_encode / oct_decode (octahedral unit directions): shaders/gbuffer_surface.wgsl,
+// compiled with this file into every stage.
 
 // The first node of column (x, y) of light `l`'s volume `v`, and the column's unit
 // direction (nodes k lie at start + dir·spacing·k).

@@ -6,9 +6,8 @@
 
 @group(1) @binding(0) var<storage, read> integrated: array<vec2u>;
 @group(1) @binding(1) var<storage, read_write> output: array<u32>;
-@group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
-@group(1) @binding(3) var gbuf_normal: texture_2d_array<f32>;
-@group(1) @binding(4) var gbuf_albedo: texture_2d_array<f32>;
+// The packed G-buffer (shaders/gbuffer_surface.wgsl).
+@group(1) @binding(2) var gbuf: texture_2d_array<u32>;
 // This set's smoke layers (premultiplied, fog around the particles included), read when
 // the frame has particles; a 1×1 stub otherwise (shaders/smoke_raster.wgsl).
 @group(1) @binding(5) var smoke: texture_2d_array<f32>;
@@ -28,19 +27,20 @@ fn srgb(c: vec3f) -> vec3f {
 // adds the shadow rays it traced to `rays`.
 fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 {
     let texel = vec2i(xy);
-    let pos = textureLoad(gbuf_position, texel, layer, 0);
+    let surface = textureLoad(gbuf, texel, layer, 0);
     let pix = vec2f(xy) + 0.5;
     let dir = view_ray(v, pix);
     var color = frame.sky;
     var depth = v.far;
-    if pos.w > 0.0 {
-        depth = pos.w;
-        let p = pos.xyz;
-        var n = textureLoad(gbuf_normal, texel, layer, 0).xyz;
+    if surface_depth(surface) > 0.0 {
+        depth = surface_depth(surface);
+        // The pixel centre's ray at the surface's view depth.
+        let p = v.position + dir * (depth / dot(dir, v.forward));
+        var n = surface_normal(surface);
         if dot(n, dir) > 0.0 {
             n = -n;
         }
-        let albedo = textureLoad(gbuf_albedo, texel, layer, 0).rgb;
+        let albedo = surface_albedo(surface);
         var irradiance = ambient_irradiance(p, n);
         // Offset along the normal, scaled with distance (depth precision).
         let origin = p + n * (2e-3 + depth * 2e-4);

@@ -9,7 +9,7 @@
 
 @group(1) @binding(0) var<storage, read_write> tile_depth: array<f32>;
 @group(1) @binding(1) var<storage, read_write> column_limit: array<u32>;
-@group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
+@group(1) @binding(2) var gbuf: texture_2d_array<u32>;
 
 @compute @workgroup_size(8, 8, 1)
 fn tile_max(@builtin(global_invocation_id) gid: vec3u) {
@@ -25,7 +25,7 @@ fn tile_max(@builtin(global_invocation_id) gid: vec3u) {
     let end = min(origin + v.froxel_px, v.size);
     for (var y = origin.y; y < end.y; y++) {
         for (var x = origin.x; x < end.x; x++) {
-            let w = textureLoad(gbuf_position, vec2i(vec2u(x, y)), i32(gid.z), 0).w;
+            let w = surface_depth(textureLoad(gbuf, vec2i(vec2u(x, y)), i32(gid.z), 0));
             // No surface (w = 0): the ray runs to the far plane.
             far = max(far, select(v.far, w, w > 0.0));
         }

@@ -1,4 +1,5 @@
-// G-buffer raster, one pass per viewer: world position + view depth, flat normal, albedo.
+// G-buffer raster, one pass per viewer: view depth, flat normal and albedo, packed into
+// one texel a pixel (shaders/gbuffer_surface.wgsl).
 
 // RasterView: shaders/raster_view.wgsl.
 @group(0) @binding(0) var<uniform> view: RasterView;
@@ -18,18 +19,9 @@ fn vs_main(@location(0) position: vec3f, @location(1) albedo: u32) -> VsOut {
     return o;
 }
 
-struct FsOut {
-    @location(0) position: vec4f,
-    @location(1) normal: vec4f,
-    @location(2) albedo: vec4f,
-}
-
 @fragment
-fn fs_main(i: VsOut) -> FsOut {
-    var o: FsOut;
+fn fs_main(i: VsOut) -> @location(0) vec4u {
     let n = normalize(cross(dpdx(i.world), dpdy(i.world)));
-    o.position = vec4f(i.world, max(dot(i.world - view.position, view.forward), 1e-6));
-    o.normal = vec4f(select(n, vec3f(0.0, 1.0, 0.0), any(n != n)), 0.0);
-    o.albedo = vec4f(i.albedo, 1.0);
-    return o;
+    let depth = max(dot(i.world - view.position, view.forward), 1e-6);
+    return pack_surface(depth, select(n, vec3f(0.0, 1.0, 0.0), any(n != n)), i.albedo);
 }

@@ -11,7 +11,7 @@
 
 @group(1) @binding(0) var<storage, read> integrated: array<vec2u>;
 @group(1) @binding(1) var<storage, read> proxies: array<SmokeProxy>;
-@group(1) @binding(2) var gbuf_position: texture_2d_array<f32>;
+@group(1) @binding(2) var gbuf: texture_2d_array<u32>;
 @group(1) @binding(3) var<uniform> sv: SmokeView;
 
 // One viewer's pass (SmokeViewUniform in smoke_view.rs).
@@ -103,8 +103,8 @@ fn fs_main(i: VsOut) -> @location(0) vec4f {
         }
     }
     // Occlusion by the surface (or the far plane over the sky).
-    let pos = textureLoad(gbuf_position, vec2i(floor(pix)), i32(sv.slot), 0);
-    let depth_end = select(v.far, pos.w, pos.w > 0.0);
+    let depth = surface_depth(textureLoad(gbuf, vec2i(floor(pix)), i32(sv.slot), 0));
+    let depth_end = select(v.far, depth, depth > 0.0);
     t1 = min(t1, depth_end / cos_f);
     if !(t1 > t0) {
         return vec4f(0.0);

@@ -1,5 +1,6 @@
 //! Composite + tone map, all viewers in one dispatch, with `shaders/composite.wgsl`.
 
+use super::viewer_volumes::gbuffer_entry;
 use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerSet};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::{storage_entry, GpuContext};
@@ -12,7 +13,7 @@ pub(crate) struct Composite {
     no_smoke: wgpu::Texture,
 }
 
-pub(crate) fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
@@ -33,9 +34,7 @@ impl Composite {
             vec![
                 storage_entry(0, Read),
                 storage_entry(1, ReadWrite),
-                texture_entry(2),
-                texture_entry(3),
-                texture_entry(4),
+                gbuffer_entry(2),
                 texture_entry(5),
             ],
         );
@@ -84,11 +83,7 @@ impl Composite {
                 ..Default::default()
             })
         };
-        let (pos, nrm, alb) = (
-            array_view(&volumes.gbuf_position),
-            array_view(&volumes.gbuf_normal),
-            array_view(&volumes.gbuf_albedo),
-        );
+        let gbuf = volumes.gbuf_array();
         let smoke = array_view(volumes.smoke.as_ref().map_or(&self.no_smoke, |s| &s.layers));
         let entries = vec![
             wgpu::BindGroupEntry {
@@ -101,15 +96,7 @@ impl Composite {
             },
             wgpu::BindGroupEntry {
                 binding: 2,
-                resource: wgpu::BindingResource::TextureView(&pos),
-            },
-            wgpu::BindGroupEntry {
-                binding: 3,
-                resource: wgpu::BindingResource::TextureView(&nrm),
-            },
-            wgpu::BindGroupEntry {
-                binding: 4,
-                resource: wgpu::BindingResource::TextureView(&alb),
+                resource: wgpu::BindingResource::TextureView(&gbuf),
             },
             wgpu::BindGroupEntry {
                 binding: 5,

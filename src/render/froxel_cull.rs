@@ -3,7 +3,7 @@
 //! nor allowed to request voxels. Timed as part of the `grid_requests` stage, whose work
 //! it decides.
 
-use super::composite::texture_entry;
+use super::viewer_volumes::gbuffer_entry;
 use super::{dispatch, Stage, Timestamps, ViewerSet};
 use crate::gpu::Access::ReadWrite;
 use crate::gpu::{storage_entry, GpuContext};
@@ -24,7 +24,7 @@ impl FroxelCull {
                 entries: &[
                     storage_entry(0, ReadWrite),
                     storage_entry(1, ReadWrite),
-                    texture_entry(2),
+                    gbuffer_entry(2),
                 ],
             });
         let module = super::stage_shader(
@@ -51,12 +51,7 @@ impl FroxelCull {
         ts: &Timestamps,
     ) {
         let volumes = &set.vol;
-        let position = volumes
-            .gbuf_position
-            .create_view(&wgpu::TextureViewDescriptor {
-                dimension: Some(wgpu::TextureViewDimension::D2Array),
-                ..Default::default()
-            });
+        let gbuf = volumes.gbuf_array();
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("froxel cull"),
             layout: &self.layout,
@@ -71,7 +66,7 @@ impl FroxelCull {
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&position),
+                    resource: wgpu::BindingResource::TextureView(&gbuf),
                 },
             ],
         });

@@ -171,7 +171,11 @@ impl GBuffer {
         );
         let module = ctx.shader(
             "gbuffer",
-            &[RASTER_VIEW_WGSL, include_str!("../../shaders/gbuffer.wgsl")],
+            &[
+                RASTER_VIEW_WGSL,
+                super::GBUFFER_SURFACE_WGSL,
+                include_str!("../../shaders/gbuffer.wgsl"),
+            ],
         );
         let pl = ctx
             .device
@@ -212,11 +216,7 @@ impl GBuffer {
                         module: &module,
                         entry_point: Some("fs_main"),
                         compilation_options: Default::default(),
-                        targets: &[
-                            target(wgpu::TextureFormat::Rgba32Float),
-                            target(wgpu::TextureFormat::Rgba16Float),
-                            target(wgpu::TextureFormat::Rgba8Unorm),
-                        ],
+                        targets: &[target(super::viewer_volumes::GBUFFER_FORMAT)],
                     }),
                     multiview_mask: None,
                     cache: None,
@@ -350,11 +350,7 @@ impl GBuffer {
         };
         let n = views.len() as u32;
         for i in 0..n {
-            let targets = [
-                layer(&volumes.gbuf_position, i),
-                layer(&volumes.gbuf_normal, i),
-                layer(&volumes.gbuf_albedo, i),
-            ];
+            let targets = [layer(&volumes.gbuf, i)];
             let depth = layer(&volumes.gbuf_depth, i);
             let clear = wgpu::Operations {
                 load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),

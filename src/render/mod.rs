@@ -65,6 +65,7 @@ use viewer_set::ViewerSet;
 
 const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
 const BVH_WGSL: &str = include_str!("../../shaders/bvh.wgsl");
+const GBUFFER_SURFACE_WGSL: &str = include_str!("../../shaders/gbuffer_surface.wgsl");
 
 /// Compiles one compute stage: the shared bindings and helpers (common.wgsl), the
 /// frame-counter helper for this adapter (per subgroup where supported), BVH traversal,
@@ -77,7 +78,10 @@ pub(crate) fn stage_shader(ctx: &GpuContext, label: &str, stage: &str) -> wgpu::
     } else {
         include_str!("../../shaders/count_atomic.wgsl")
     };
-    ctx.shader(label, &[COMMON_WGSL, count, BVH_WGSL, stage])
+    ctx.shader(
+        label,
+        &[COMMON_WGSL, GBUFFER_SURFACE_WGSL, count, BVH_WGSL, stage],
+    )
 }
 
 /// The per-viewer stages' pipelines, shared by every viewer set.

@@ -7,9 +7,9 @@
 //! Skipped entirely in a frame without live particles. See docs/decisions.md, "Smoke per
 //! viewer: tetrahedra, interval shading, fog around it".
 
-use super::composite::texture_entry;
 use super::scene_gpu::SceneGpu;
 use super::shadow_maps::ShadowMaps;
+use super::viewer_volumes::gbuffer_entry;
 use super::{dispatch, Stage, Timestamps, ViewerSet};
 use crate::gpu::Access::ReadWrite;
 use crate::gpu::{storage_entry, GpuContext};
@@ -171,7 +171,7 @@ impl SmokeView {
             storage_ro(1, vf),
             wgpu::BindGroupLayoutEntry {
                 visibility: wgpu::ShaderStages::FRAGMENT,
-                ..texture_entry(2)
+                ..gbuffer_entry(2)
             },
             wgpu::BindGroupLayoutEntry {
                 binding: 3,
@@ -303,10 +303,7 @@ impl SmokeView {
         let Some(smoke) = &vol.smoke else {
             return;
         };
-        let position = vol.gbuf_position.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
+        let gbuf = vol.gbuf_array();
         let bg = maps.stage_bind_group(
             ctx,
             "smoke raster",
@@ -322,7 +319,7 @@ impl SmokeView {
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&position),
+                    resource: wgpu::BindingResource::TextureView(&gbuf),
                 },
                 wgpu::BindGroupEntry {
                     binding: 3,

@@ -91,8 +91,27 @@ pub fn largest_binding(
         .expect("seven sizes")
 }
 
-/// G-buffer bytes per pixel: position rgba32f, normal rgba16f, albedo rgba8, depth 32f.
-const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 8 + 4 + 4;
+/// G-buffer bytes per pixel: the packed surface (rgba32uint, shaders/gbuffer.wgsl) and
+/// the depth attachment (32f).
+const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 4;
+
+/// Format of the packed G-buffer: view depth (f32 bits), octahedral normal (2 × snorm16),
+/// albedo (rgba8), one spare word.
+pub(crate) const GBUFFER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
+
+/// Layout entry of the packed G-buffer array (`ViewerVolumes::gbuf_array`) at `binding`.
+pub(crate) fn gbuffer_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Uint,
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
 
 /// GPU memory of [`ViewerVolumes`] for `count` views of `width`×`height` under
 /// `settings` in a scene holding at most `smoke_particles` particles
@@ -162,9 +181,8 @@ pub struct ViewerVolumes {
     pub(crate) tile_depth: wgpu::Buffer,
     pub(crate) column_limit: wgpu::Buffer,
     pub(crate) output: wgpu::Buffer,
-    pub(crate) gbuf_position: wgpu::Texture,
-    pub(crate) gbuf_normal: wgpu::Texture,
-    pub(crate) gbuf_albedo: wgpu::Texture,
+    /// Each pixel's surface, packed (`GBUFFER_FORMAT`; shaders/gbuffer.wgsl).
+    pub(crate) gbuf: wgpu::Texture,
     pub(crate) gbuf_depth: wgpu::Texture,
     /// Smoke proxies and layers (a scene with emitters only; smoke_view.rs).
     pub(crate) smoke: Option<super::smoke_view::SmokeBuffers>,
@@ -232,11 +250,18 @@ impl ViewerVolumes {
             tile_depth: tile_depth?,
             column_limit: column_limit?,
             output: output?,
-            gbuf_position: tex("gbuffer position", wgpu::TextureFormat::Rgba32Float),
-            gbuf_normal: tex("gbuffer normal", wgpu::TextureFormat::Rgba16Float),
-            gbuf_albedo: tex("gbuffer albedo", wgpu::TextureFormat::Rgba8Unorm),
+            gbuf: tex("gbuffer", GBUFFER_FORMAT),
             gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
             smoke: None,
+        })
+    }
+
+    /// The packed G-buffer of every view as one array view (composite, hidden-froxel
+    /// culling and the smoke raster read it; gbuffer_entry is its layout entry).
+    pub(crate) fn gbuf_array(&self) -> wgpu::TextureView {
+        self.gbuf.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
         })
     }
 

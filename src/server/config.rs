@@ -160,7 +160,7 @@ impl Default for ServerConfig {
             frame_timeout_s: 30.0,
             // Four 1920×1080 views.
             max_pixels_per_frame: 4 * 1920 * 1080,
-            // Four 1920×1080 views hold 544 MiB.
+            // Four 1920×1080 views hold 444 MiB.
             max_view_memory_mib: 1024,
             idle_timeout_s: 300.0,
             max_kbps: 8000,
