@@ -91,8 +91,8 @@ pub fn largest_binding(
         .expect("seven sizes")
 }
 
-/// G-buffer bytes per pixel: the packed surface (rgba32uint, shaders/gbuffer.wgsl) and
-/// the depth attachment (32f).
+/// G-buffer bytes per pixel: the packed surface (rgba32uint,
+/// shaders/gbuffer_surface.wgsl) and the depth attachment (32f).
 const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 4;
 
 /// Format of the packed G-buffer: view depth (f32 bits), octahedral normal (2 × snorm16),
@@ -181,7 +181,7 @@ pub struct ViewerVolumes {
     pub(crate) tile_depth: wgpu::Buffer,
     pub(crate) column_limit: wgpu::Buffer,
     pub(crate) output: wgpu::Buffer,
-    /// Each pixel's surface, packed (`GBUFFER_FORMAT`; shaders/gbuffer.wgsl).
+    /// Each pixel's surface, packed (`GBUFFER_FORMAT`; shaders/gbuffer_surface.wgsl).
     pub(crate) gbuf: wgpu::Texture,
     pub(crate) gbuf_depth: wgpu::Texture,
     /// Smoke proxies and layers (a scene with emitters only; smoke_view.rs).
