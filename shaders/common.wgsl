@@ -356,7 +356,12 @@ fn froxel_pixel(v: View, xy: vec2u) -> vec2f {
 
 // The sample point of `slice` on the column's ray `dir`.
 fn froxel_point(v: View, dir: vec3f, slice: u32) -> vec3f {
-    return v.position + dir * (froxel_depth(v, slice) / dot(dir, v.forward));
+    return point_at_depth(v, dir, froxel_depth(v, slice));
+}
+
+// The point at view depth `z` on view `v`'s ray `dir` (unit, from the eye).
+fn point_at_depth(v: View, dir: vec3f, z: f32) -> vec3f {
+    return v.position + dir * (z / dot(dir, v.forward));
 }
 
 // The view depth of `slice`'s samples: its centre, moved by this frame's jitter.

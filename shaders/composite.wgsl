@@ -35,7 +35,7 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
     if surface_depth(surface) > 0.0 {
         depth = surface_depth(surface);
         // The pixel centre's ray at the surface's view depth.
-        let p = v.position + dir * (depth / dot(dir, v.forward));
+        let p = point_at_depth(v, dir, depth);
         var n = surface_normal(surface);
         if dot(n, dir) > 0.0 {
             n = -n;
