@@ -9,6 +9,29 @@ struct RasterView {
     _pad1: f32,
     // Pixels.
     size: vec2f,
-    _pad2: vec2f,
+    // `occlusion_cull`: where the view's depth pyramid starts in shaders/hiz.wgsl's
+    // buffer.
+    hiz_base: u32,
+    _pad2: u32,
     _pad3: array<vec4f, 9>,
+}
+
+// `occlusion_cull`'s depth pyramid (shaders/hiz.wgsl): level k = 1..=HIZ_LEVELS holds the
+// farthest view depth of every 2^k × 2^k pixels, the levels one after another.
+const HIZ_LEVELS: u32 = 4u;
+
+// Tiles of level k of view `v` per row and column.
+fn hiz_dims(v: RasterView, k: u32) -> vec2u {
+    let t = 1u << k;
+    return (vec2u(v.size) + t - 1u) / t;
+}
+
+// Where level k of view `v`'s pyramid starts.
+fn hiz_offset(v: RasterView, k: u32) -> u32 {
+    var o = v.hiz_base;
+    for (var j = 1u; j < k; j++) {
+        let d = hiz_dims(v, j);
+        o += d.x * d.y;
+    }
+    return o;
 }

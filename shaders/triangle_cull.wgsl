@@ -7,6 +7,15 @@
 // `cull` marks and counts each pair's triangles, `compact` writes them after the counts
 // of the view's earlier pairs. The order is the scene's, so the picture is the one the
 // unculled draw gives, depth ties included.
+//
+// With `occlusion_cull` the raster runs in two phases (two-phase occlusion culling, as
+// GPU-driven engines do it): `cull` puts in the first list only the kept triangles that
+// were visible in this view last frame; after they are drawn, shaders/hiz.wgsl builds a
+// pyramid of their farthest depths, and `occlude` tests every kept triangle against
+// it: a triangle nearer than that somewhere in its screen box is visible (next frame's
+// first list), and the visible ones not drawn yet make the second list. A triangle
+// dropped there lies behind surfaces drawn this frame at every pixel centre it covers,
+// so the picture is the one drawing it gives (up to depth ties between the two lists).
 
 // RasterView: shaders/raster_view.wgsl.
 @group(0) @binding(0) var<storage, read> views: array<RasterView>;
@@ -17,17 +26,27 @@
 @group(0) @binding(3) var<storage, read> clusters: array<vec4u>;
 // Per pair: view, cluster, the view's first pair, 0. A view's pairs are consecutive.
 @group(0) @binding(4) var<storage, read> pairs: array<vec4u>;
-// Per pair, PAIR_WORDS words: the kept triangles' count, then a 16-bit mask per lane.
+// Three regions of `params[0].y` words, each PAIR_WORDS words per pair (the count, then
+// MASK_WORDS masks per lane): the triangles kept, those of the first list, those of
+// the second (`occlusion_cull`).
 @group(0) @binding(5) var<storage, read_write> kept: array<u32>;
 @group(0) @binding(6) var<storage, read_write> out_indices: array<u32>;
 // Per view: DrawIndexedIndirect (index count, instances, first index, base vertex,
-// first instance).
+// first instance) of the first list, then of every view's second list.
 @group(0) @binding(7) var<storage, read_write> args: array<u32>;
-// This frame's pairs (x; the pair buffer is longer).
-@group(0) @binding(8) var<uniform> pair_count: vec4u;
+// [0]: this frame's pairs (the pair buffer is longer), a region's words, the scene's
+// clusters, the frame's views; [1].x: which list `compact` writes (0 first, 1 second),
+// [1].y: 1 with `occlusion_cull`.
+@group(0) @binding(8) var<uniform> params: array<vec4u, 2>;
 // The frame's counters (common.wgsl's C_*): the triangles kept, summed over views.
 @group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>>;
 const C_RASTER_TRIANGLES: u32 = 12u;
+// Per view and cluster, 32 words: which of its triangles the view saw last frame (a
+// triangle `occlude` found nearer than the depths drawn around it).
+@group(0) @binding(10) var<storage, read_write> visible: array<u32>;
+// Per view, from its RasterView.hiz_base: the pyramid of the farthest view depths drawn
+// in the first phase (shaders/hiz.wgsl; no surface: 3e38).
+@group(0) @binding(11) var<storage, read> hiz: array<f32>;
 
 // One subgroup per pair, no workgroup barrier (llvmpipe runs barrier-free compute as
 // straight SIMD loops): LANES lanes, each PER_LANE consecutive triangles of the pair's
@@ -88,7 +107,7 @@ fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) 
 @compute @workgroup_size(8)
 fn cull(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @builtin(local_invocation_index) lane: u32) {
     let p = pair_index(wg, n);
-    if p >= pair_count.x {
+    if p >= params[0].x {
         return;
     }
     let pair = pairs[p];
@@ -96,7 +115,8 @@ fn cull(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @bu
     let size = views[pair.x].size;
     let c = clusters[pair.y];
     let triangles = c.y / 3u;
-    var kept_here = 0u;
+    let occlusion = params[1].y == 1u;
+    var first_here = 0u;
     for (var w = 0u; w < MASK_WORDS; w++) {
         var bits = 0u;
         for (var k = 0u; k < 32u; k++) {
@@ -108,12 +128,113 @@ fn cull(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @bu
                 }
             }
         }
-        kept[p * PAIR_WORDS + 1u + lane * MASK_WORDS + w] = bits;
-        kept_here += countOneBits(bits);
+        let m = mask_word(p, lane, w);
+        kept[m] = bits;
+        // The first list: every kept triangle, or with occlusion culling those the view
+        // saw last frame.
+        var first = bits;
+        if occlusion {
+            first &= visible[visible_word(pair, lane, w)];
+        }
+        kept[params[0].y + m] = first;
+        first_here += countOneBits(first);
     }
-    let total = subgroupAdd(kept_here);
+    let total = subgroupAdd(first_here);
     if lane == 0u {
-        kept[p * PAIR_WORDS] = total;
+        kept[params[0].y + p * PAIR_WORDS] = total;
+        atomicAdd(&counters[C_RASTER_TRIANGLES], total);
+    }
+}
+
+// Word `w` of lane `lane`'s mask of pair `p` in the first region.
+fn mask_word(p: u32, lane: u32, w: u32) -> u32 {
+    return p * PAIR_WORDS + 1u + lane * MASK_WORDS + w;
+}
+
+// The word of `visible` holding the same triangles as mask word (lane, w) of `pair`.
+fn visible_word(pair: vec4u, lane: u32, w: u32) -> u32 {
+    return (pair.x * params[0].z + pair.y) * (LANES * MASK_WORDS) + lane * MASK_WORDS + w;
+}
+
+// Whether the triangle (ia, ib, ic), which `drawn` keeps, lies behind the depths drawn
+// in view `v`'s first phase at every pixel centre its screen box holds: its nearest
+// corner farther than the farthest depth of the 2 × 2 tiles of the finest pyramid level
+// whose tiles the box fits in. Boxes wider than two of the top level's tiles, and
+// triangles reaching behind the eye, count as visible.
+fn occluded(v: RasterView, ia: u32, ib: u32, ic: u32) -> bool {
+    let a = corner(v.view_proj, ia);
+    let b = corner(v.view_proj, ib);
+    let c = corner(v.view_proj, ic);
+    // Clip w is the view depth (what the G-buffer keeps).
+    let near = min(a.w, min(b.w, c.w));
+    if near <= 1e-6 {
+        return false;
+    }
+    let sa = (vec2f(a.x, -a.y) / a.w * 0.5 + 0.5) * v.size;
+    let sb = (vec2f(b.x, -b.y) / b.w * 0.5 + 0.5) * v.size;
+    let sc = (vec2f(c.x, -c.y) / c.w * 0.5 + 0.5) * v.size;
+    let lo_f = max(ceil(min(sa, min(sb, sc)) - 1.0 / 64.0 - 0.5), vec2f(0.0));
+    let hi_f = min(floor(max(sa, max(sb, sc)) + 1.0 / 64.0 - 0.5), v.size - 1.0);
+    if any(lo_f > hi_f) {
+        return false;
+    }
+    let lo = vec2u(lo_f);
+    let hi = vec2u(hi_f);
+    var k = 1u;
+    while k <= HIZ_LEVELS && any((hi >> vec2u(k)) - (lo >> vec2u(k)) > vec2u(1u)) {
+        k++;
+    }
+    if k > HIZ_LEVELS {
+        return false;
+    }
+    let t0 = lo >> vec2u(k);
+    let t1 = hi >> vec2u(k);
+    let o = hiz_offset(v, k);
+    let cols = hiz_dims(v, k).x;
+    let farthest = max(
+        max(hiz[o + t0.x + cols * t0.y], hiz[o + t1.x + cols * t0.y]),
+        max(hiz[o + t0.x + cols * t1.y], hiz[o + t1.x + cols * t1.y]),
+    );
+    return near > farthest * (1.0 + 1e-4);
+}
+
+// `occlusion_cull`'s second pass, after the first list is drawn and shaders/hiz.wgsl
+// took its depths: every kept triangle of the pair is tested against them. The visible
+// ones are the view's first list next frame; those of them not drawn yet are the second
+// list (third region).
+@compute @workgroup_size(8)
+fn occlude(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @builtin(local_invocation_index) lane: u32) {
+    let p = pair_index(wg, n);
+    if p >= params[0].x {
+        return;
+    }
+    let pair = pairs[p];
+    let v = views[pair.x];
+    let c = clusters[pair.y];
+    var second_here = 0u;
+    for (var w = 0u; w < MASK_WORDS; w++) {
+        let m = mask_word(p, lane, w);
+        let candidates = kept[m];
+        let vw = visible_word(pair, lane, w);
+        let drawn_first = kept[params[0].y + m];
+        var seen = 0u;
+        var bits = candidates;
+        while bits != 0u {
+            let k = firstTrailingBit(bits);
+            bits &= bits - 1u;
+            let i = c.x + 3u * (lane * PER_LANE + w * 32u + k);
+            if !occluded(v, indices[i], indices[i + 1u], indices[i + 2u]) {
+                seen |= 1u << k;
+            }
+        }
+        visible[vw] = seen;
+        let second = seen & ~drawn_first;
+        kept[2u * params[0].y + m] = second;
+        second_here += countOneBits(second);
+    }
+    let total = subgroupAdd(second_here);
+    if lane == 0u {
+        kept[2u * params[0].y + p * PAIR_WORDS] = total;
         atomicAdd(&counters[C_RASTER_TRIANGLES], total);
     }
 }
@@ -121,27 +242,36 @@ fn cull(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @bu
 @compute @workgroup_size(8)
 fn compact(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @builtin(local_invocation_index) lane: u32) {
     let p = pair_index(wg, n);
-    if p >= pair_count.x {
+    if p >= params[0].x {
         return;
     }
     let pair = pairs[p];
     let c = clusters[pair.y];
+    // The list written: the first (second region), or the second (third region), which
+    // follows the first in the view's part of the index buffer.
+    let second = params[1].x == 1u;
+    let region = select(1u, 2u, second) * params[0].y;
     // Triangles kept by the view's earlier pairs.
     var before = 0u;
     for (var q = pair.z + lane; q < p; q += LANES) {
-        before += kept[q * PAIR_WORDS];
+        before += kept[region + q * PAIR_WORDS];
     }
     let earlier = subgroupAdd(before);
     var here = 0u;
     for (var w = 0u; w < MASK_WORDS; w++) {
-        here += countOneBits(kept[p * PAIR_WORDS + 1u + lane * MASK_WORDS + w]);
+        here += countOneBits(kept[region + mask_word(p, lane, w)]);
     }
     // This lane's first slot: after the earlier pairs and this pair's lower lanes.
     var at = earlier + subgroupExclusiveAdd(here);
     let end = earlier + subgroupAdd(here);
-    let base = args[5u * pair.x + 2u];
+    var base = args[5u * pair.x + 2u];
+    var draw = 5u * pair.x;
+    if second {
+        base += args[5u * pair.x];
+        draw = 5u * (params[0].w + pair.x);
+    }
     for (var w = 0u; w < MASK_WORDS; w++) {
-        var bits = kept[p * PAIR_WORDS + 1u + lane * MASK_WORDS + w];
+        var bits = kept[region + mask_word(p, lane, w)];
         while bits != 0u {
             let k = firstTrailingBit(bits);
             bits &= bits - 1u;
@@ -153,8 +283,9 @@ fn compact(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, 
         }
     }
     // The view's last pair knows its total: the draw's index count.
-    let last = p + 1u == pair_count.x || pairs[p + 1u].x != pair.x;
+    let last = p + 1u == params[0].x || pairs[p + 1u].x != pair.x;
     if lane == 0u && last {
-        args[5u * pair.x] = 3u * end;
+        args[draw] = 3u * end;
+        args[draw + 2u] = base;
     }
 }

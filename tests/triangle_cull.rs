@@ -8,7 +8,7 @@
 mod gpu_support;
 
 use fogcast::metrics::compare;
-use fogcast::render::{FrameTarget, Renderer, Settings, TargetsOutput};
+use fogcast::render::{FrameTarget, Renderer, Settings, TargetsOutput, OCCLUSION_MIN_TRIANGLES};
 use fogcast::scene::Scene;
 use gpu_support::{colonnade, gpu};
 use std::sync::Arc;
@@ -113,4 +113,81 @@ fn one_sided_meshes_movers_and_tiny_views_draw_the_same_picture_culled() {
             "{size:?}"
         );
     }
+}
+
+/// `frames` frames at 30 fps from t = 0 of `viewers` mono views with `occlusion_cull`
+/// on or off (triangle culling on); the last frame's output.
+fn frames_occluded(
+    scene: &Arc<Scene>,
+    occlusion: bool,
+    viewers: usize,
+    size: (u32, u32),
+    frames: usize,
+) -> TargetsOutput {
+    let settings = Settings {
+        occlusion_cull: occlusion,
+        ..Settings::default()
+    };
+    let mut r = Renderer::new(gpu(), scene.clone(), settings).unwrap();
+    let mut last = None;
+    for f in 0..frames {
+        let t = f as f32 / 30.0;
+        let targets: Vec<FrameTarget> = scene
+            .camera
+            .viewers(viewers, t)
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| FrameTarget::single(i as u64, c, size.0, size.1))
+            .collect();
+        last = Some(r.render_targets(&targets, t).unwrap());
+    }
+    last.unwrap()
+}
+
+#[test]
+fn occlusion_culling_draws_the_same_picture_from_fewer_triangles() {
+    // Sponza's arcades hide much of what each view's frustum holds. The first frame has
+    // no history (its first phase is empty, its test passes everything); the third
+    // draws last frame's visible triangles, then the rest that pass the depth tiles.
+    let scene = Arc::new(Scene::load("scenes/sponza.toml").expect("scenes/sponza.toml loads"));
+    assert!(scene.mesh.indices.len() as u64 / 3 >= OCCLUSION_MIN_TRIANGLES);
+    const SIZE: (u32, u32) = (320, 180);
+    let occluded = frames_occluded(&scene, true, 4, SIZE, 3);
+    let kept = frames_occluded(&scene, false, 4, SIZE, 3);
+    let (pixels, flip) = differences(&occluded, &kept, SIZE);
+    let (with, without) = (occluded.stats.raster_triangles, kept.stats.raster_triangles);
+    println!(
+        "4 views of Sponza at 320×180, frame 3: {with} triangles drawn with occlusion \
+         culling, {without} without ({:.1} %); {pixels} pixels differ, worst FLIP {flip:.2e}",
+        100.0 * with as f64 / without as f64
+    );
+    assert!(
+        (with as f64) < 0.85 * without as f64,
+        "{with} vs {without} triangles"
+    );
+    assert!(with > 0);
+    assert!(pixels <= 4, "{pixels} pixels differ");
+    assert!(flip < 1e-4, "FLIP {flip}");
+    // The depth tiles and the seen-triangle bits are per-viewer memory.
+    let lists = |o: &TargetsOutput| {
+        o.stats
+            .memory
+            .per_viewer
+            .iter()
+            .find(|(n, _)| n == "triangle_lists")
+            .map_or(0, |(_, b)| *b)
+    };
+    assert!(lists(&occluded) > lists(&kept));
+}
+
+#[test]
+fn occlusion_culling_leaves_small_scenes_to_one_phase() {
+    // Colonnade's few hundred triangles: the second phase would cost more than it saves,
+    // so the raster draws what triangle culling keeps, the same with the setting on.
+    let scene = colonnade();
+    assert!((scene.mesh.indices.len() as u64 / 3) < OCCLUSION_MIN_TRIANGLES);
+    let on = frames_occluded(&scene, true, 3, (160, 90), 3);
+    let off = frames_occluded(&scene, false, 3, (160, 90), 3);
+    assert_eq!(on.stats.raster_triangles, off.stats.raster_triangles);
+    assert_eq!(differences(&on, &off, (160, 90)).0, 0);
 }

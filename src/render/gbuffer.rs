@@ -7,7 +7,20 @@ use crate::gpu::GpuContext;
 use crate::scene::{Camera, Cull};
 use glam::{Mat4, Vec3};
 
-const VIEW_STRIDE: u64 = 256;
+pub(crate) const VIEW_STRIDE: u64 = 256;
+
+/// Levels of `occlusion_cull`'s depth pyramid: level k holds 2^k × 2^k pixels a tile
+/// (`HIZ_LEVELS` in shaders/raster_view.wgsl).
+pub(crate) const HIZ_LEVELS: u32 = 4;
+
+/// Which of the raster's phases a pass draws: with `occlusion_cull` the triangles the
+/// view saw last frame first, then those the occlusion test finds visible besides;
+/// without it, everything in the first.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Phase {
+    First,
+    Second,
+}
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -15,8 +28,11 @@ pub(crate) struct RasterView {
     view_proj: [[f32; 4]; 4],
     position: [f32; 4],
     forward: [f32; 4],
-    /// Pixels (width, height, 0, 0).
-    size: [f32; 4],
+    /// Pixels (width, height).
+    size: [f32; 2],
+    /// `occlusion_cull`: where the view's depth pyramid starts in its buffer
+    /// (`GBuffer::upload` places them), and padding.
+    hiz: [u32; 2],
     /// To `VIEW_STRIDE` bytes, the stride of the views in their buffer.
     _pad: [[f32; 4]; 9],
 }
@@ -27,6 +43,25 @@ pub(crate) const RASTER_VIEW_WGSL: &str = include_str!("../../shaders/raster_vie
 const _: () = assert!(std::mem::size_of::<RasterView>() as u64 == VIEW_STRIDE);
 
 impl RasterView {
+    /// Tiles of level `k` of the view's depth pyramid, per row and column.
+    pub(crate) fn hiz_dims(&self, k: u32) -> (u32, u32) {
+        let t = 1 << k;
+        (
+            (self.size[0] as u32).div_ceil(t),
+            (self.size[1] as u32).div_ceil(t),
+        )
+    }
+
+    /// Tiles of the view's depth pyramid, all levels.
+    pub(crate) fn hiz_tiles(&self) -> u64 {
+        (1..=HIZ_LEVELS)
+            .map(|k| {
+                let (x, y) = self.hiz_dims(k);
+                u64::from(x * y)
+            })
+            .sum()
+    }
+
     /// One raster view per camera of `width`×`height` pixels, sharing the clip range.
     pub(crate) fn for_cameras(
         cameras: &[Camera],
@@ -41,7 +76,8 @@ impl RasterView {
                 view_proj: (c.projection(aspect, near, far) * c.view()).to_cols_array_2d(),
                 position: c.position.extend(0.0).to_array(),
                 forward: c.forward.extend(0.0).to_array(),
-                size: [width as f32, height as f32, 0.0, 0.0],
+                size: [width as f32, height as f32],
+                hiz: [0, 0],
                 _pad: [[0.0; 4]; 9],
             })
             .collect()
@@ -257,15 +293,22 @@ impl GBuffer {
         ctx: &GpuContext,
         scene: &SceneGpu,
         views: &[RasterView],
-        triangle_cull: bool,
+        (triangle_cull, occlusion_cull): (bool, bool),
     ) {
         // Each view's clusters, found once: the culling's pairs and the stats read them.
         let visible: Vec<Vec<usize>> = views
             .iter()
             .map(|v| visible_clusters(scene, v).collect())
             .collect();
+        // The views' depth tiles one after another (`occlusion_cull`).
+        let mut views = views.to_vec();
+        let mut tiles = 0u64;
+        for v in &mut views {
+            v.hiz[0] = tiles as u32;
+            tiles += v.hiz_tiles();
+        }
         if let Some(lists) = &mut self.lists {
-            lists.upload(ctx, scene, &visible, triangle_cull);
+            lists.upload(ctx, scene, &visible, (triangle_cull, occlusion_cull), tiles);
         }
         let movers = movers(scene).map_or(0, |(_, r)| u64::from(r.end - r.start) / 3);
         self.mover_triangles = movers * views.len() as u64;
@@ -281,7 +324,7 @@ impl GBuffer {
         }
         // A view is VIEW_STRIDE bytes: the views lie at the stride as they are.
         ctx.queue
-            .write_buffer(&self.uniforms, 0, bytemuck::cast_slice(views));
+            .write_buffer(&self.uniforms, 0, bytemuck::cast_slice(&views));
     }
 
     /// Records the triangle culling of every view of the frame (before any set's raster).
@@ -297,11 +340,48 @@ impl GBuffer {
         }
     }
 
+    /// The active triangle lists, if the views draw them this frame.
+    fn active_lists(&self) -> Option<&TriangleLists> {
+        self.lists.as_ref().filter(|l| l.pair_count > 0)
+    }
+
+    /// Whether this frame's raster has a second phase (`occlusion_cull`).
+    pub(crate) fn two_phases(&self) -> bool {
+        self.active_lists().is_some_and(|l| l.occlusion)
+    }
+
+    /// Records `set`'s depth tiles from its first phase (`occlusion_cull`).
+    pub(crate) fn add_hiz(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        set: &ViewerSet,
+        ts: &Timestamps,
+    ) {
+        if let Some(lists) = self.active_lists() {
+            lists.add_hiz(ctx, enc, &self.uniforms, set, ts);
+        }
+    }
+
+    /// Records the occlusion test of every view's kept triangles and the second lists
+    /// (after every set's depth tiles).
+    pub(crate) fn add_occlusion(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &SceneGpu,
+        ts: &Timestamps,
+    ) {
+        if let Some(lists) = self.active_lists() {
+            lists.add_occlusion(ctx, enc, scene, &self.uniforms, ts);
+        }
+    }
+
     /// (triangles drawn, triangles in the clusters the views' frustums touch) this
     /// frame, summed over views, movers included; `kept` is the culling pass's count
     /// of the static triangles it kept (`C_RASTER_TRIANGLES`).
     pub(crate) fn raster_triangles(&self, kept: u64) -> (u64, u64) {
-        let culled = self.lists.as_ref().is_some_and(|l| l.pair_count > 0);
+        let culled = self.active_lists().is_some();
         let drawn = if culled {
             kept + self.mover_triangles
         } else {
@@ -317,12 +397,15 @@ impl GBuffer {
 
     /// Records one render pass per viewer of `set` into its layer of the G-buffer
     /// arrays; the set's raster views start at `set.first_view` in the uploaded list.
+    /// The first phase clears and draws the first lists and the movers, the second
+    /// (`two_phases`) draws the second lists over it.
     pub(crate) fn add_passes(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
         scene: &SceneGpu,
         set: &ViewerSet,
+        phase: Phase,
         ts: &Timestamps,
     ) {
         let first = set.first_view;
@@ -352,8 +435,15 @@ impl GBuffer {
         for i in 0..n {
             let targets = [layer(&volumes.gbuf, i)];
             let depth = layer(&volumes.gbuf_depth, i);
+            let (load, load_depth) = match phase {
+                Phase::First => (
+                    wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    wgpu::LoadOp::Clear(1.0),
+                ),
+                Phase::Second => (wgpu::LoadOp::Load, wgpu::LoadOp::Load),
+            };
             let clear = wgpu::Operations {
-                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                load,
                 store: wgpu::StoreOp::Store,
             };
             let attachments: Vec<Option<wgpu::RenderPassColorAttachment>> = targets
@@ -374,7 +464,7 @@ impl GBuffer {
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &depth,
                     depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
+                        load: load_depth,
                         store: wgpu::StoreOp::Store,
                     }),
                     stencil_ops: None,
@@ -389,12 +479,18 @@ impl GBuffer {
             pass.set_bind_group(0, &bg, &[(first as u32 + i) * VIEW_STRIDE as u32]);
             pass.set_vertex_buffer(0, scene.vertices.slice(..));
             pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
-            if let Some(lists) = self.lists.as_ref().filter(|l| l.pair_count > 0) {
+            if let Some(lists) = self.active_lists() {
                 // The view's culled list (its sides already culled), then the movers.
                 pass.set_pipeline(&self.pipelines[Cull::None as usize]);
                 pass.set_index_buffer(lists.indices.slice(..), wgpu::IndexFormat::Uint32);
-                let at = (first as u64 + u64::from(i)) * DRAW_ARGS_BYTES;
-                pass.draw_indexed_indirect(&lists.args, at);
+                let mut draw = first as u64 + u64::from(i);
+                if phase == Phase::Second {
+                    draw += u64::from(lists.views);
+                }
+                pass.draw_indexed_indirect(&lists.args, draw * DRAW_ARGS_BYTES);
+                if phase == Phase::Second {
+                    continue;
+                }
                 if let Some((_, range)) = movers(scene) {
                     pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
                     pass.draw_indexed(range, 0, 0..1);

@@ -47,13 +47,14 @@ pub use smoke_shadows::{SmokeMapKind, SmokeShadowMap, MAX_CROSSINGS as SMOKE_MAX
 pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
 pub use target::{stereo_eyes, FrameOutput, FrameTarget, TargetView, TargetsOutput};
-pub use triangle_cull::triangle_list_bytes_per_view;
+pub use triangle_cull::{triangle_list_bytes_per_view, OCCLUSION_MIN_TRIANGLES};
 pub use viewer_set::ViewerId;
 pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
 pub use world::{Lookup, World};
 
 use crate::gpu::GpuContext;
 use crate::scene::{Bvh, Camera, Scene};
+use gbuffer::Phase;
 use gpu_types::*;
 use readback::{Readback, ReadbackBytes};
 pub(crate) use stage::{dispatch, Timestamps};
@@ -308,8 +309,24 @@ impl Renderer {
         // The frame, top to bottom: one line per stage, for the world or every set.
         stages.gbuffer.add_culling(&ctx, &mut f.enc, &world.gpu, ts);
         f.each_set(Stage::GBuffer, |e, s| {
-            stages.gbuffer.add_passes(&ctx, e, &world.gpu, s, ts)
+            stages
+                .gbuffer
+                .add_passes(&ctx, e, &world.gpu, s, Phase::First, ts)
         });
+        if stages.gbuffer.two_phases() {
+            // `occlusion_cull`: every set's depth tiles, the test, the second phase.
+            for s in f.sets.values() {
+                stages.gbuffer.add_hiz(&ctx, &mut f.enc, s, ts);
+            }
+            stages
+                .gbuffer
+                .add_occlusion(&ctx, &mut f.enc, &world.gpu, ts);
+            for s in f.sets.values() {
+                stages
+                    .gbuffer
+                    .add_passes(&ctx, &mut f.enc, &world.gpu, s, Phase::Second, ts);
+            }
+        }
         f.world(Stage::SmokeParticles, |e, _| {
             world.add_smoke_particles(e, ts)
         });
@@ -410,9 +427,12 @@ impl Renderer {
             .values()
             .flat_map(|s| s.raster_views.iter().copied())
             .collect();
-        self.stages
-            .gbuffer
-            .upload(&w.ctx, &w.gpu, &rasters, w.settings.triangle_cull);
+        self.stages.gbuffer.upload(
+            &w.ctx,
+            &w.gpu,
+            &rasters,
+            (w.settings.triangle_cull, w.settings.occlusion_cull),
+        );
         w.write_views(frame, &views)
     }
 

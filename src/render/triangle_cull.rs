@@ -1,9 +1,12 @@
 //! Per-view triangle culling before the G-buffer raster (`triangle_cull`), with
 //! `shaders/triangle_cull.wgsl`: every view's index list of the triangles the raster can
-//! make a fragment of, and its indirect draw (`GBuffer` draws them).
+//! make a fragment of, and its indirect draw (`GBuffer` draws them). With
+//! `occlusion_cull` two lists a view, drawn in two phases, and `shaders/hiz.wgsl`'s
+//! depth tiles between them.
 
-use super::gbuffer::RASTER_VIEW_WGSL;
-use super::{scene_gpu::SceneGpu, Stage, Timestamps};
+use super::gbuffer::{HIZ_LEVELS, RASTER_VIEW_WGSL, VIEW_STRIDE};
+use super::viewer_volumes::gbuffer_entry;
+use super::{scene_gpu::SceneGpu, Stage, Timestamps, ViewerSet};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::{storage_entry, GpuContext};
 
@@ -14,6 +17,15 @@ const PAIR_WORDS: u64 = 33;
 /// Bytes of one `DrawIndexedIndirect` record.
 pub(crate) const DRAW_ARGS_BYTES: u64 = 20;
 
+/// Words of `visible` per view and cluster: a bit per triangle of a 1024-triangle cluster.
+const VISIBLE_WORDS: u64 = 32;
+
+/// Static triangles a scene needs before `occlusion_cull` applies: below it the raster's
+/// cost is its fixed per-view work, not its triangles, and the second phase only adds
+/// (colonnade, 336 triangles, 16 viewers: G-buffer 23.5 → 26.7 ms with it;
+/// docs/decisions.md, "G-buffer: two-phase occlusion culling").
+pub const OCCLUSION_MIN_TRIANGLES: u64 = 65_536;
+
 /// GPU memory the G-buffer's triangle culling (`triangle_cull`) can hold per view in a
 /// scene of `static_triangles`: the view's index list if every cluster were in its
 /// frustum, and a pair record per cluster (clusters of one cull each: at most 3 more
@@ -23,7 +35,15 @@ pub fn triangle_list_bytes_per_view(settings: &super::Settings, static_triangles
         return 0;
     }
     let clusters = static_triangles.div_ceil(super::scene_gpu::CLUSTER_TRIANGLES as u64) + 3;
-    static_triangles * 12 + clusters * (16 + PAIR_WORDS * 4) + DRAW_ARGS_BYTES
+    let lists = static_triangles * 12 + clusters * (16 + 3 * PAIR_WORDS * 4) + 2 * DRAW_ARGS_BYTES;
+    if !settings.occlusion_cull || static_triangles < OCCLUSION_MIN_TRIANGLES {
+        return lists;
+    }
+    // A 1920×1080 view's depth pyramid, and which triangles it saw.
+    let tiles: u64 = (1..=HIZ_LEVELS)
+        .map(|k| 1920u64.div_ceil(1 << k) * 1080u64.div_ceil(1 << k))
+        .sum();
+    lists + tiles * 4 + clusters * VISIBLE_WORDS * 4
 }
 
 /// Per-view triangle culling (`triangle_cull`): the frame's (view, cluster) pairs, what
@@ -32,14 +52,27 @@ pub(crate) struct TriangleLists {
     layout: wgpu::BindGroupLayout,
     cull: wgpu::ComputePipeline,
     compact: wgpu::ComputePipeline,
+    occlude: wgpu::ComputePipeline,
+    hiz_layout: wgpu::BindGroupLayout,
+    hiz_pipeline: wgpu::ComputePipeline,
     pairs: wgpu::Buffer,
+    /// Three regions of masks and counts: kept, first list, second list.
     kept: wgpu::Buffer,
     pub(crate) indices: wgpu::Buffer,
+    /// Every view's first list's draw, then every view's second list's.
     pub(crate) args: wgpu::Buffer,
-    /// This frame's pair count (the pair buffer is longer).
-    count: wgpu::Buffer,
+    /// Per view and cluster, which triangles the view saw last frame.
+    visible: wgpu::Buffer,
+    /// Every view's depth tiles (`RasterView::hiz`).
+    hiz: wgpu::Buffer,
+    /// The pass parameters writing the first list, and the second
+    /// (`params` in shaders/triangle_cull.wgsl).
+    params: [wgpu::Buffer; 2],
     /// This frame's pairs (0: nothing to cull, or culling off).
     pub(crate) pair_count: u32,
+    /// This frame's views (all sets), and whether they draw in two phases.
+    pub(crate) views: u32,
+    pub(crate) occlusion: bool,
 }
 
 impl TriangleLists {
@@ -58,18 +91,38 @@ impl TriangleLists {
                     storage_entry(6, ReadWrite),
                     storage_entry(7, ReadWrite),
                     storage_entry(9, ReadWrite),
+                    storage_entry(10, ReadWrite),
+                    storage_entry(11, Read),
                     wgpu::BindGroupLayoutEntry {
                         binding: 8,
                         visibility: wgpu::ShaderStages::COMPUTE,
                         ty: wgpu::BindingType::Buffer {
                             ty: wgpu::BufferBindingType::Uniform,
                             has_dynamic_offset: false,
-                            min_binding_size: wgpu::BufferSize::new(16),
+                            min_binding_size: wgpu::BufferSize::new(32),
                         },
                         count: None,
                     },
                 ],
             });
+        let hiz_layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("depth tiles"),
+                entries: &[
+                    storage_entry(0, Read),
+                    gbuffer_entry(1),
+                    storage_entry(2, ReadWrite),
+                ],
+            });
+        let hiz_module = ctx.shader(
+            "depth tiles",
+            &[
+                RASTER_VIEW_WGSL,
+                super::GBUFFER_SURFACE_WGSL,
+                include_str!("../../shaders/hiz.wgsl"),
+            ],
+        );
         let module = ctx.shader(
             "triangle cull",
             &[
@@ -85,21 +138,31 @@ impl TriangleLists {
                 mapped_at_creation: false,
             })
         };
+        let params = || {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("triangle cull parameters"),
+                size: 32,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
         TriangleLists {
             cull: ctx.compute_pipeline_entry("triangle cull", &module, &[&layout], "cull"),
             compact: ctx.compute_pipeline_entry("triangle compact", &module, &[&layout], "compact"),
+            occlude: ctx.compute_pipeline_entry("triangle occlude", &module, &[&layout], "occlude"),
+            hiz_pipeline: ctx.compute_pipeline("depth tiles", &hiz_module, &[&hiz_layout]),
+            hiz_layout,
             layout,
             pairs: buffer("triangle cull pairs", wgpu::BufferUsages::empty()),
             kept: buffer("triangle cull kept", wgpu::BufferUsages::empty()),
             indices: buffer("triangle lists", wgpu::BufferUsages::INDEX),
             args: buffer("triangle list draws", wgpu::BufferUsages::INDIRECT),
-            count: ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("triangle cull pair count"),
-                size: 16,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
+            visible: buffer("triangles seen", wgpu::BufferUsages::empty()),
+            hiz: buffer("depth tiles", wgpu::BufferUsages::empty()),
+            params: [params(), params()],
             pair_count: 0,
+            views: 0,
+            occlusion: false,
         }
     }
 
@@ -108,21 +171,30 @@ impl TriangleLists {
         if self.pair_count == 0 {
             return 0;
         }
-        self.pairs.size() + self.kept.size() + self.indices.size() + self.args.size()
+        let occlusion = if self.occlusion {
+            self.visible.size() + self.hiz.size()
+        } else {
+            0
+        };
+        self.pairs.size() + self.kept.size() + self.indices.size() + self.args.size() + occlusion
     }
 
     /// Plans this frame's lists for every set's views, in order, given the clusters each
     /// one's frustum touches (`visible`): a pair per view and such cluster, each view's
-    /// list as long as those clusters' indices, and each view's draw with no indices until
-    /// the pass counts them.
+    /// list as long as those clusters' indices, and each view's draws with no indices
+    /// until the passes count them. With `occlusion`, `views` hold their depth tiles'
+    /// places (`hiz_tiles` of them in all).
     pub(crate) fn upload(
         &mut self,
         ctx: &GpuContext,
         scene: &SceneGpu,
         visible: &[Vec<usize>],
-        on: bool,
+        (on, occlusion): (bool, bool),
+        hiz_tiles: u64,
     ) {
         self.pair_count = 0;
+        self.views = visible.len() as u32;
+        self.occlusion = false;
         if !on || scene.clusters.is_empty() {
             return;
         }
@@ -142,6 +214,7 @@ impl TriangleLists {
         // Buffers grow to the next power of two, never past what every cluster in every
         // view would need (what the server's budget plans with).
         let static_indices = u64::from(scene.clusters.last().map_or(0, |c| c.indices.end));
+        let occlusion = occlusion && static_indices / 3 >= OCCLUSION_MIN_TRIANGLES;
         let n = pairs.len() as u64;
         let lists = u64::from(list_end) * 4;
         if lists > ctx.max_storage_binding {
@@ -163,22 +236,57 @@ impl TriangleLists {
         grow(&mut self.pairs, n * 16, all * clusters * 16);
         grow(
             &mut self.kept,
-            n * PAIR_WORDS * 4,
-            all * clusters * PAIR_WORDS * 4,
+            3 * n * PAIR_WORDS * 4,
+            3 * all * clusters * PAIR_WORDS * 4,
         );
         grow(&mut self.indices, lists, all * static_indices * 4);
-        grow(&mut self.args, all * DRAW_ARGS_BYTES, all * DRAW_ARGS_BYTES);
+        grow(
+            &mut self.args,
+            2 * all * DRAW_ARGS_BYTES,
+            2 * all * DRAW_ARGS_BYTES,
+        );
+        if occlusion {
+            // Which triangles each view saw last frame: kept while the views and the
+            // scene's clusters stay (a view joining or leaving starts them afresh, which
+            // costs one frame's culling, never a pixel).
+            let seen = all * clusters * VISIBLE_WORDS * 4;
+            if self.visible.size() != seen {
+                self.visible = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("triangles seen"),
+                    size: seen,
+                    usage: self.visible.usage(),
+                    mapped_at_creation: false,
+                });
+            }
+            grow(&mut self.hiz, hiz_tiles * 4, hiz_tiles * 4);
+        }
+        // The second lists' draws follow the first lists'; both start at the view's base
+        // until `compact` places them.
+        let draws: Vec<[u32; 5]> = args.iter().chain(args.iter()).copied().collect();
         ctx.queue
             .write_buffer(&self.pairs, 0, bytemuck::cast_slice(&pairs));
         ctx.queue
-            .write_buffer(&self.args, 0, bytemuck::cast_slice(&args));
-        let count = [pairs.len() as u32, 0, 0, 0];
-        ctx.queue
-            .write_buffer(&self.count, 0, bytemuck::cast_slice(&count));
+            .write_buffer(&self.args, 0, bytemuck::cast_slice(&draws));
+        // A region of `kept` (its masks and counts) for this frame's pairs.
+        let region = pairs.len() as u32 * PAIR_WORDS as u32;
+        for (list, buffer) in self.params.iter().enumerate() {
+            let p = [
+                pairs.len() as u32,
+                region,
+                clusters as u32,
+                self.views,
+                list as u32,
+                u32::from(occlusion),
+                0,
+                0,
+            ];
+            ctx.queue.write_buffer(buffer, 0, bytemuck::cast_slice(&p));
+        }
         self.pair_count = pairs.len() as u32;
+        self.occlusion = occlusion;
     }
 
-    /// Records the two passes over every view of the frame.
+    /// Records the culling and the first lists' compaction over every view of the frame.
     pub(crate) fn add_passes(
         &self,
         ctx: &GpuContext,
@@ -190,6 +298,90 @@ impl TriangleLists {
         if self.pair_count == 0 {
             return;
         }
+        let bg = self.bind_group(ctx, scene, views, 0);
+        for pipeline in [&self.cull, &self.compact] {
+            super::dispatch(enc, ts, Stage::GBuffer, pipeline, &[&bg], self.groups());
+        }
+    }
+
+    /// With `occlusion_cull`, after the first phase's raster and every set's depth tiles:
+    /// the occlusion test and the second lists' compaction.
+    pub(crate) fn add_occlusion(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &SceneGpu,
+        views: &wgpu::Buffer,
+        ts: &Timestamps,
+    ) {
+        if self.pair_count == 0 || !self.occlusion {
+            return;
+        }
+        let bg = self.bind_group(ctx, scene, views, 1);
+        for pipeline in [&self.occlude, &self.compact] {
+            super::dispatch(enc, ts, Stage::GBuffer, pipeline, &[&bg], self.groups());
+        }
+    }
+
+    /// With `occlusion_cull`: the depth tiles of `set`'s views from its first phase.
+    pub(crate) fn add_hiz(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        views: &wgpu::Buffer,
+        set: &ViewerSet,
+        ts: &Timestamps,
+    ) {
+        if self.pair_count == 0 || !self.occlusion {
+            return;
+        }
+        let n = set.raster_views.len() as u64;
+        let gbuf = set.vol.gbuf_array();
+        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("depth tiles"),
+            layout: &self.hiz_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: views,
+                        offset: set.first_view as u64 * VIEW_STRIDE,
+                        size: wgpu::BufferSize::new(n * VIEW_STRIDE),
+                    }),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&gbuf),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: self.hiz.as_entire_binding(),
+                },
+            ],
+        });
+        // One invocation per tile of the top level.
+        let (cols, rows) = set
+            .raster_views
+            .first()
+            .map_or((0, 0), |v| v.hiz_dims(HIZ_LEVELS));
+        let groups = [cols.div_ceil(8), rows.div_ceil(8), n as u32];
+        super::dispatch(enc, ts, Stage::GBuffer, &self.hiz_pipeline, &[&bg], groups);
+    }
+
+    /// The pairs as a 2-D grid of workgroups (the shader reads its pair as x + y·nx).
+    fn groups(&self) -> [u32; 3] {
+        let x = self.pair_count.min(32768);
+        [x, self.pair_count.div_ceil(x), 1]
+    }
+
+    /// The passes' bindings, with the parameters that write list `list` (0 or 1).
+    fn bind_group(
+        &self,
+        ctx: &GpuContext,
+        scene: &SceneGpu,
+        views: &wgpu::Buffer,
+        list: usize,
+    ) -> wgpu::BindGroup {
         let buffers = [
             views,
             &scene.vertices,
@@ -200,26 +392,26 @@ impl TriangleLists {
             &self.indices,
             &self.args,
         ];
-        // Then binding 8, the uniform pair count, and 9, the frame's counters.
+        // Then binding 8, the parameters, 9, the frame's counters, 10 and 11 what the
+        // views saw and their depth tiles.
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
-            .chain([&&self.count, &&scene.counters])
+            .chain([
+                &&self.params[list],
+                &&scene.counters,
+                &&self.visible,
+                &&self.hiz,
+            ])
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry {
                 binding: i as u32,
                 resource: b.as_entire_binding(),
             })
             .collect();
-        let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("triangle cull"),
             layout: &self.layout,
             entries: &entries,
-        });
-        // The pairs as a 2-D grid of workgroups (the shader reads its pair as x + y·nx).
-        let x = self.pair_count.min(32768);
-        let groups = [x, self.pair_count.div_ceil(x), 1];
-        for pipeline in [&self.cull, &self.compact] {
-            super::dispatch(enc, ts, Stage::GBuffer, pipeline, &[&bg], groups);
-        }
+        })
     }
 }
