@@ -1,6 +1,6 @@
 // `occlusion_cull`: after the first phase of the G-buffer raster, each view's depth
-// pyramid — at level k = 1..=HIZ_LEVELS the farthest view depth of every 2^k × 2^k
-// pixels, a pixel without a surface counting as 3e38 — which shaders/triangle_cull.wgsl's
+// pyramid — at level k = 0..=HIZ_LEVELS the farthest view depth of every 2^k × 2^k
+// pixels (level 0 each pixel's), a pixel without a surface counting as 3e38 — which shaders/triangle_cull.wgsl's
 // `occlude` tests the kept triangles against. One invocation per 16 × 16 pixels (a tile
 // of the top level) reads them once and writes every level's tiles in it; z runs over
 // the set's views.
@@ -28,7 +28,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
     if any(gid.xy >= hiz_dims(v, HIZ_LEVELS)) {
         return;
     }
-    // Level 1 (8 × 8 tiles of 2 × 2 pixels), then each level from the one below.
+    // Levels 0 and 1 (8 × 8 tiles of 2 × 2 pixels), then each level from the one below.
     var level: array<f32, 64>;
     for (var t = 0u; t < 64u; t++) {
         let tile = vec2u(t % 8u, t / 8u);
@@ -37,7 +37,9 @@ fn main(@builtin(global_invocation_id) gid: vec3u) {
             let px = (gid.xy * 8u + tile) * 2u + vec2u(q % 2u, q / 2u);
             if all(px < size) {
                 let d = surface_depth(textureLoad(gbuf, px, gid.z, 0));
-                farthest = max(farthest, select(NO_SURFACE, d, d > 0.0));
+                let here = select(NO_SURFACE, d, d > 0.0);
+                put(v, 0u, px, here);
+                farthest = max(farthest, here);
             }
         }
         level[t] = farthest;

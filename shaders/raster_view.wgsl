@@ -16,8 +16,9 @@ struct RasterView {
     _pad3: array<vec4f, 9>,
 }
 
-// `occlusion_cull`'s depth pyramid (shaders/hiz.wgsl): level k = 1..=HIZ_LEVELS holds the
-// farthest view depth of every 2^k × 2^k pixels, the levels one after another.
+// `occlusion_cull`'s depth pyramid (shaders/hiz.wgsl): level k = 0..=HIZ_LEVELS holds the
+// farthest view depth of every 2^k × 2^k pixels (level 0: each pixel's), the levels one
+// after another.
 const HIZ_LEVELS: u32 = 4u;
 
 // Tiles of level k of view `v` per row and column.
@@ -29,7 +30,7 @@ fn hiz_dims(v: RasterView, k: u32) -> vec2u {
 // Where level k of view `v`'s pyramid starts.
 fn hiz_offset(v: RasterView, k: u32) -> u32 {
     var o = v.hiz_base;
-    for (var j = 1u; j < k; j++) {
+    for (var j = 0u; j < k; j++) {
         let d = hiz_dims(v, j);
         o += d.x * d.y;
     }

@@ -180,7 +180,7 @@ fn occluded(v: RasterView, ia: u32, ib: u32, ic: u32) -> bool {
     }
     let lo = vec2u(lo_f);
     let hi = vec2u(hi_f);
-    var k = 1u;
+    var k = 0u;
     while k <= HIZ_LEVELS && any((hi >> vec2u(k)) - (lo >> vec2u(k)) > vec2u(1u)) {
         k++;
     }

@@ -9,8 +9,8 @@ use glam::{Mat4, Vec3};
 
 pub(crate) const VIEW_STRIDE: u64 = 256;
 
-/// Levels of `occlusion_cull`'s depth pyramid: level k holds 2^k × 2^k pixels a tile
-/// (`HIZ_LEVELS` in shaders/raster_view.wgsl).
+/// Levels of `occlusion_cull`'s depth pyramid above its pixels: level k holds 2^k × 2^k
+/// pixels a tile, level 0 the pixels (`HIZ_LEVELS` in shaders/raster_view.wgsl).
 pub(crate) const HIZ_LEVELS: u32 = 4;
 
 /// Which of the raster's phases a pass draws: with `occlusion_cull` the triangles the
@@ -54,7 +54,7 @@ impl RasterView {
 
     /// Tiles of the view's depth pyramid, all levels.
     pub(crate) fn hiz_tiles(&self) -> u64 {
-        (1..=HIZ_LEVELS)
+        (0..=HIZ_LEVELS)
             .map(|k| {
                 let (x, y) = self.hiz_dims(k);
                 u64::from(x * y)

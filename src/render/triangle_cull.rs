@@ -40,7 +40,7 @@ pub fn triangle_list_bytes_per_view(settings: &super::Settings, static_triangles
         return lists;
     }
     // A 1920×1080 view's depth pyramid, and which triangles it saw.
-    let tiles: u64 = (1..=HIZ_LEVELS)
+    let tiles: u64 = (0..=HIZ_LEVELS)
         .map(|k| 1920u64.div_ceil(1 << k) * 1080u64.div_ceil(1 << k))
         .sum();
     lists + tiles * 4 + clusters * VISIBLE_WORDS * 4
