@@ -66,6 +66,47 @@ fn corner(view_proj: mat4x4f, i: u32) -> vec4f {
     return view_proj * vec4f(bitcast<vec3f>(vertices[i].xyz), 1.0);
 }
 
+// How far the raster may move a corner when it snaps it to its sub-pixel grid, in
+// pixels (llvmpipe: 1/512; Vulkan allows 1/32): the tests below grow by it.
+const SNAP_PX: f32 = 1.0 / 64.0;
+
+// Whether screen-space triangle (a, b, c) (pixels, y down), whose corners and the point
+// `p` lie within distance `d` of each other, may cover `p` once the raster has snapped
+// its corners: `p` on the inner side of each edge, or outside it by no more than a snap
+// of SNAP_PX can move the edge at `p`. Moving a and b by at most δ changes the edge
+// function (b − a) × (p − a) by at most δ·(2|p − a| + |b − a|) + 2δ² ≤ 3δd + 2δ², and
+// the doubled area by as much. A triangle of (nearly) no area counts as covering.
+fn may_cover(a: vec2f, b: vec2f, c: vec2f, p: vec2f, d: f32) -> bool {
+    let slack = SNAP_PX * (3.0 * d + 2.0 * SNAP_PX);
+    let area = cross2(b - a, c - a);
+    if abs(area) <= slack {
+        return true;
+    }
+    let e = sign(area) * vec3f(cross2(b - a, p - a), cross2(c - b, p - b), cross2(a - c, p - c));
+    return all(e >= vec3f(-slack));
+}
+
+fn cross2(u: vec2f, v: vec2f) -> f32 {
+    return u.x * v.y - u.y * v.x;
+}
+
+// Whether the screen-space triangle (a, b, c) may cover any pixel centre k + 0.5 with k
+// in [lo, hi] (a box of at most 2 × 2 centres; larger boxes count as covered).
+fn covers_a_centre(a: vec2f, b: vec2f, c: vec2f, lo: vec2f, hi: vec2f) -> bool {
+    if any(hi - lo > vec2f(1.0)) {
+        return true;
+    }
+    // Corners and centres lie within the box grown by SNAP_PX.
+    let d = length(max(max(a, b), max(c, hi + 0.5)) - min(min(a, b), min(c, lo + 0.5)));
+    for (var q = 0u; q < 4u; q++) {
+        let k = lo + vec2f(f32(q & 1u), f32(q >> 1u));
+        if all(k <= hi) && may_cover(a, b, c, k + 0.5, d) {
+            return true;
+        }
+    }
+    return false;
+}
+
 // Whether the raster can draw any fragment of the triangle of vertices (ia, ib, ic)
 // under `view_proj` in a view of `size` pixels with cull mode `cull`. Conservative: a
 // triangle reaching behind the eye plane skips the pixel-centre test (the raster clips
@@ -95,13 +136,16 @@ fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) 
     let sa = (vec2f(a.x, -a.y) / a.w * 0.5 + 0.5) * size;
     let sb = (vec2f(b.x, -b.y) / b.w * 0.5 + 0.5) * size;
     let sc = (vec2f(c.x, -c.y) / c.w * 0.5 + 0.5) * size;
-    let lo = min(sa, min(sb, sc)) - 1.0 / 64.0;
-    let hi = max(sa, max(sb, sc)) + 1.0 / 64.0;
+    let lo = min(sa, min(sb, sc)) - SNAP_PX;
+    let hi = max(sa, max(sb, sc)) + SNAP_PX;
     // The pixel centres k + 0.5 in [lo, hi], along each axis.
-    if any(ceil(lo - 0.5) > floor(hi - 0.5)) {
+    let k0 = ceil(lo - 0.5);
+    let k1 = floor(hi - 0.5);
+    if any(k0 > k1) {
         return false;
     }
-    return true;
+    // A small triangle's box may hold a centre the triangle misses.
+    return covers_a_centre(sa, sb, sc, k0, k1);
 }
 
 @compute @workgroup_size(8)
@@ -159,8 +203,9 @@ fn visible_word(pair: vec4u, lane: u32, w: u32) -> u32 {
 // Whether the triangle (ia, ib, ic), which `drawn` keeps, lies behind the depths drawn
 // in view `v`'s first phase at every pixel centre its screen box holds: its nearest
 // corner farther than the farthest depth of the 2 × 2 tiles of the finest pyramid level
-// whose tiles the box fits in. Boxes wider than two of the top level's tiles, and
-// triangles reaching behind the eye, count as visible.
+// whose tiles the box fits in; at the pixels' level (a box of at most 2 × 2 centres),
+// than the depth of each centre the triangle may cover (`may_cover`). Boxes wider than
+// two of the top level's tiles, and triangles reaching behind the eye, count as visible.
 fn occluded(v: RasterView, ia: u32, ib: u32, ic: u32) -> bool {
     let a = corner(v.view_proj, ia);
     let b = corner(v.view_proj, ib);
@@ -173,8 +218,8 @@ fn occluded(v: RasterView, ia: u32, ib: u32, ic: u32) -> bool {
     let sa = (vec2f(a.x, -a.y) / a.w * 0.5 + 0.5) * v.size;
     let sb = (vec2f(b.x, -b.y) / b.w * 0.5 + 0.5) * v.size;
     let sc = (vec2f(c.x, -c.y) / c.w * 0.5 + 0.5) * v.size;
-    let lo_f = max(ceil(min(sa, min(sb, sc)) - 1.0 / 64.0 - 0.5), vec2f(0.0));
-    let hi_f = min(floor(max(sa, max(sb, sc)) + 1.0 / 64.0 - 0.5), v.size - 1.0);
+    let lo_f = max(ceil(min(sa, min(sb, sc)) - SNAP_PX - 0.5), vec2f(0.0));
+    let hi_f = min(floor(max(sa, max(sb, sc)) + SNAP_PX - 0.5), v.size - 1.0);
     if any(lo_f > hi_f) {
         return false;
     }
@@ -186,6 +231,19 @@ fn occluded(v: RasterView, ia: u32, ib: u32, ic: u32) -> bool {
     }
     if k > HIZ_LEVELS {
         return false;
+    }
+    if k == 0u {
+        // At most 2 × 2 centres: behind the depth drawn at each centre it may cover.
+        let o = hiz_offset(v, 0u);
+        let cols = hiz_dims(v, 0u).x;
+        let d = length(max(max(sa, sb), max(sc, hi_f + 0.5)) - min(min(sa, sb), min(sc, lo_f + 0.5)));
+        for (var q = 0u; q < 4u; q++) {
+            let px = lo + vec2u(q & 1u, q >> 1u);
+            if all(px <= hi) && may_cover(sa, sb, sc, vec2f(px) + 0.5, d) && near <= hiz[o + px.x + cols * px.y] * (1.0 + 1e-4) {
+                return false;
+            }
+        }
+        return true;
     }
     let t0 = lo >> vec2u(k);
     let t1 = hi >> vec2u(k);

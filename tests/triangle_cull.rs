@@ -14,26 +14,43 @@ use gpu_support::{colonnade, gpu};
 use std::sync::Arc;
 
 /// One frame of `viewers` mono views of `w`×`h` along the scene's path at `time_s`.
+/// The last of the frames at scene times `times` of `viewers` path viewers, one renderer
+/// with `settings` (a renderer keeps its occlusion history from frame to frame).
+fn render(
+    scene: &Arc<Scene>,
+    settings: Settings,
+    viewers: usize,
+    (w, h): (u32, u32),
+    times: &[f32],
+) -> TargetsOutput {
+    let mut r = Renderer::new(gpu(), scene.clone(), settings).unwrap();
+    let mut last = None;
+    for &t in times {
+        let targets: Vec<FrameTarget> = scene
+            .camera
+            .viewers(viewers, t)
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| FrameTarget::single(i as u64, c, w, h))
+            .collect();
+        last = Some(r.render_targets(&targets, t).unwrap());
+    }
+    last.expect("at least one frame")
+}
+
+/// One frame at `time_s`, with or without per-view triangle culling.
 fn frame(
     scene: &Arc<Scene>,
     cull: bool,
     viewers: usize,
-    (w, h): (u32, u32),
+    size: (u32, u32),
     time_s: f32,
 ) -> TargetsOutput {
     let settings = Settings {
         triangle_cull: cull,
         ..Settings::default()
     };
-    let targets: Vec<FrameTarget> = scene
-        .camera
-        .viewers(viewers, time_s)
-        .into_iter()
-        .enumerate()
-        .map(|(i, c)| FrameTarget::single(i as u64, c, w, h))
-        .collect();
-    let mut r = Renderer::new(gpu(), scene.clone(), settings).unwrap();
-    r.render_targets(&targets, time_s).unwrap()
+    render(scene, settings, viewers, size, &[time_s])
 }
 
 /// Pixels that differ, and the worst image's mean FLIP, culled against unculled.
@@ -128,20 +145,8 @@ fn frames_occluded(
         occlusion_cull: occlusion,
         ..Settings::default()
     };
-    let mut r = Renderer::new(gpu(), scene.clone(), settings).unwrap();
-    let mut last = None;
-    for f in 0..frames {
-        let t = f as f32 / 30.0;
-        let targets: Vec<FrameTarget> = scene
-            .camera
-            .viewers(viewers, t)
-            .into_iter()
-            .enumerate()
-            .map(|(i, c)| FrameTarget::single(i as u64, c, size.0, size.1))
-            .collect();
-        last = Some(r.render_targets(&targets, t).unwrap());
-    }
-    last.unwrap()
+    let times: Vec<f32> = (0..frames).map(|f| f as f32 / 30.0).collect();
+    render(scene, settings, viewers, size, &times)
 }
 
 #[test]

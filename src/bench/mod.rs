@@ -272,6 +272,10 @@ pub struct BenchPoint {
     /// volume).
     #[serde(default)]
     pub froxels_with_media: u64,
+    /// G-buffer triangles drawn, summed over views, and those in the clusters the views'
+    /// frustums touch (what an unculled draw rasterises); means per measured frame.
+    #[serde(default)]
+    pub raster_triangles: (u64, u64),
     /// Shared grid dimensions (zero without a grid).
     pub grid_dims: [u32; 3],
     /// GPU memory.
@@ -352,6 +356,7 @@ struct Samples {
     rays: Vec<RayCounts>,
     voxels: Vec<u64>,
     froxels: Vec<u64>,
+    triangles: Vec<(u64, u64)>,
     flip: Vec<f64>,
     flip_alone: Vec<f64>,
     vs_one_eye: Vec<f64>,
@@ -380,6 +385,8 @@ impl Samples {
         self.rays.push(s.rays);
         self.voxels.push(s.voxels_traced);
         self.froxels.push(s.froxels_with_media);
+        self.triangles
+            .push((s.raster_triangles, s.raster_triangles_in_clusters));
         self.last = Some(out);
     }
 
@@ -416,6 +423,10 @@ impl Samples {
             },
             voxels_updated: self.voxels.iter().sum::<u64>() / n,
             froxels_with_media: self.froxels.iter().sum::<u64>() / n,
+            raster_triangles: (
+                self.triangles.iter().map(|t| t.0).sum::<u64>() / n,
+                self.triangles.iter().map(|t| t.1).sum::<u64>() / n,
+            ),
             grid_dims: stats.map_or([0; 3], |s| s.grid_dims),
             memory: stats.map_or(
                 MemoryBytes {

@@ -717,6 +717,15 @@ fn markdown(r: &BenchReport) -> String {
             Some(&|p, q| ratio(p.memory.total as f64, q.memory.total as f64)),
         );
         let voxels = per_config_table(r, path, &|p| p.voxels_updated.to_string(), None);
+        let triangles = per_config_table(
+            r,
+            path,
+            &|p| {
+                let (drawn, in_clusters) = p.raster_triangles;
+                format!("{drawn} of {in_clusters}")
+            },
+            None,
+        );
         let mut flip = Table::new(&["cameras"]);
         let challengers = challengers(r);
         flip.headers.extend(
@@ -739,6 +748,7 @@ fn markdown(r: &BenchReport) -> String {
              \n## Shadow rays per frame, fog stages (× its own fewest-viewer count; paper Figure 11)\n\n{}\
              \n## Memory, MiB: total (shared + viewers × per viewer; paper Figure 14)\n\n{}\
              \n## Shared-grid voxels updated per frame\n\n{}\
+             \n## G-buffer triangles drawn per frame, of those in the clusters the frustums touch (all views)\n\n{}\
              \n## Where the time goes: GPU ms per stage, median (paper Figure 13)\n\n{}\
              \n## Mean FLIP against reference on the same frames\n\n{}",
             time.to_markdown(),
@@ -746,6 +756,7 @@ fn markdown(r: &BenchReport) -> String {
             rays.to_markdown(),
             memory.to_markdown(),
             voxels.to_markdown(),
+            triangles.to_markdown(),
             stage_table(r, path).to_markdown(),
             flip.to_markdown(),
             fog_stages = super::fog_stage_list(),

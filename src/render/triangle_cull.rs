@@ -295,12 +295,8 @@ impl TriangleLists {
         views: &wgpu::Buffer,
         ts: &Timestamps,
     ) {
-        if self.pair_count == 0 {
-            return;
-        }
-        let bg = self.bind_group(ctx, scene, views, 0);
-        for pipeline in [&self.cull, &self.compact] {
-            super::dispatch(enc, ts, Stage::GBuffer, pipeline, &[&bg], self.groups());
+        if self.pair_count > 0 {
+            self.test_and_compact(ctx, enc, scene, views, ts, 0, &self.cull);
         }
     }
 
@@ -314,11 +310,27 @@ impl TriangleLists {
         views: &wgpu::Buffer,
         ts: &Timestamps,
     ) {
-        if self.pair_count == 0 || !self.occlusion {
-            return;
+        if self.pair_count > 0 && self.occlusion {
+            self.test_and_compact(ctx, enc, scene, views, ts, 1, &self.occlude);
         }
-        let bg = self.bind_group(ctx, scene, views, 1);
-        for pipeline in [&self.occlude, &self.compact] {
+    }
+
+    /// One phase's passes over every (view, cluster) pair: `test` (the frustum and
+    /// pixel-centre cull, or the occlusion test), then the compaction of what it kept
+    /// into list `list` (0 the first, 1 the second).
+    #[allow(clippy::too_many_arguments)]
+    fn test_and_compact(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &SceneGpu,
+        views: &wgpu::Buffer,
+        ts: &Timestamps,
+        list: usize,
+        test: &wgpu::ComputePipeline,
+    ) {
+        let bg = self.bind_group(ctx, scene, views, list);
+        for pipeline in [test, &self.compact] {
             super::dispatch(enc, ts, Stage::GBuffer, pipeline, &[&bg], self.groups());
         }
     }
