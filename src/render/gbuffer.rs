@@ -336,7 +336,7 @@ impl GBuffer {
         ts: &Timestamps,
     ) {
         if let Some(lists) = &self.lists {
-            lists.add_passes(ctx, enc, scene, &self.uniforms, ts);
+            lists.add_phase(ctx, enc, scene, &self.uniforms, Phase::First, ts);
         }
     }
 
@@ -373,7 +373,7 @@ impl GBuffer {
         ts: &Timestamps,
     ) {
         if let Some(lists) = self.active_lists() {
-            lists.add_occlusion(ctx, enc, scene, &self.uniforms, ts);
+            lists.add_phase(ctx, enc, scene, &self.uniforms, Phase::Second, ts);
         }
     }
 

@@ -4,7 +4,7 @@
 //! `occlusion_cull` two lists a view, drawn in two phases, and `shaders/hiz.wgsl`'s
 //! depth tiles between them.
 
-use super::gbuffer::{HIZ_LEVELS, RASTER_VIEW_WGSL, VIEW_STRIDE};
+use super::gbuffer::{Phase, HIZ_LEVELS, RASTER_VIEW_WGSL, VIEW_STRIDE};
 use super::viewer_volumes::gbuffer_entry;
 use super::{scene_gpu::SceneGpu, Stage, Timestamps, ViewerSet};
 use crate::gpu::Access::{Read, ReadWrite};
@@ -286,49 +286,26 @@ impl TriangleLists {
         self.occlusion = occlusion;
     }
 
-    /// Records the culling and the first lists' compaction over every view of the frame.
-    pub(crate) fn add_passes(
+    /// Records one phase's passes over every (view, cluster) pair of the frame: for the
+    /// first, the culling test and the first lists' compaction (before any raster); for
+    /// the second (`occlusion_cull`, after the first phase's raster and every set's depth
+    /// tiles), the occlusion test and the second lists' compaction.
+    pub(crate) fn add_phase(
         &self,
         ctx: &GpuContext,
         enc: &mut wgpu::CommandEncoder,
         scene: &SceneGpu,
         views: &wgpu::Buffer,
+        phase: Phase,
         ts: &Timestamps,
     ) {
-        if self.pair_count > 0 {
-            self.test_and_compact(ctx, enc, scene, views, ts, 0, &self.cull);
+        let (list, test) = match phase {
+            Phase::First => (0, &self.cull),
+            Phase::Second => (1, &self.occlude),
+        };
+        if self.pair_count == 0 || (phase == Phase::Second && !self.occlusion) {
+            return;
         }
-    }
-
-    /// With `occlusion_cull`, after the first phase's raster and every set's depth tiles:
-    /// the occlusion test and the second lists' compaction.
-    pub(crate) fn add_occlusion(
-        &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        scene: &SceneGpu,
-        views: &wgpu::Buffer,
-        ts: &Timestamps,
-    ) {
-        if self.pair_count > 0 && self.occlusion {
-            self.test_and_compact(ctx, enc, scene, views, ts, 1, &self.occlude);
-        }
-    }
-
-    /// One phase's passes over every (view, cluster) pair: `test` (the frustum and
-    /// pixel-centre cull, or the occlusion test), then the compaction of what it kept
-    /// into list `list` (0 the first, 1 the second).
-    #[allow(clippy::too_many_arguments)]
-    fn test_and_compact(
-        &self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        scene: &SceneGpu,
-        views: &wgpu::Buffer,
-        ts: &Timestamps,
-        list: usize,
-        test: &wgpu::ComputePipeline,
-    ) {
         let bg = self.bind_group(ctx, scene, views, list);
         for pipeline in [test, &self.compact] {
             super::dispatch(enc, ts, Stage::GBuffer, pipeline, &[&bg], self.groups());
