@@ -67,7 +67,10 @@ fn corner(view_proj: mat4x4f, i: u32) -> vec4f {
 }
 
 // How far the raster may move a corner when it snaps it to its sub-pixel grid, in
-// pixels (llvmpipe: 1/512; Vulkan allows 1/32): the tests below grow by it.
+// pixels: the tests below grow by it. Rasterisers with 8 sub-pixel bits (llvmpipe, and
+// the minimum D3D12 requires) move a corner by at most 1/512 pixel; 1/64 is 8 times
+// that. Vulkan's minimum, 4 bits, could move one by 1/32: an adapter that coarse could
+// draw a pixel that these tests decide it does not.
 const SNAP_PX: f32 = 1.0 / 64.0;
 
 // Whether screen-space triangle (a, b, c) (pixels, y down), whose corners and the point
