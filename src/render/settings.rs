@@ -325,12 +325,13 @@ settings! {
     /// triangle.
     ///
     /// A triangle dropped lies behind what is drawn at every pixel it covers, so the
-    /// picture is the same; lavapipe pays for every triangle it sets up, and on Sponza's
-    /// path 30 % of the kept ones are hidden (docs/decisions.md, "G-buffer: two-phase
-    /// occlusion culling").
+    /// picture is the same. Off by default: on Sponza's path it draws a third fewer
+    /// triangles, but on lavapipe its depth pyramid, test and second render passes cost
+    /// what those triangles did (G-buffer ×1.006–1.013 over 16–24 paired frames, and 0.35
+    /// MiB more a viewer; docs/decisions.md, "G-buffer: two-phase occlusion culling").
     // Reports from before a setting existed read it as off (`serde(default)`).
     #[serde(default)]
-    occlusion_cull: bool = true;
+    occlusion_cull: bool = false;
 }
 
 // What reports from before these settings existed read as (and their defaults).
