@@ -12,20 +12,6 @@ use fogcast::scene::{Bvh, Scene};
 use fogcast::truth::{render_truth, TruthSettings};
 use std::sync::Arc;
 
-fn flip_map(r: &[u8], t: &[u8], w: u32, h: u32) -> Vec<f32> {
-    let rgb = |img: &[u8]| -> Vec<u8> {
-        img.chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect()
-    };
-    let a = flip_rs::RgbImage::new(w as usize, h as usize, rgb(r)).unwrap();
-    let b = flip_rs::RgbImage::new(w as usize, h as usize, rgb(t)).unwrap();
-    flip_rs::ldr_flip(&a, &b, flip_rs::DEFAULT_PPD)
-        .unwrap()
-        .pixels()
-        .to_vec()
-}
-
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     anyhow::ensure!(
@@ -65,7 +51,9 @@ fn main() -> anyhow::Result<()> {
         let mut tot = 0.0;
         for k in 0..n {
             let im = o.images[k].clone();
-            let f = flip_map(&truth[k], &im, w, h);
+            let f = fogcast::metrics::flip_map(&truth[k], &im, w, h)?
+                .pixels()
+                .to_vec();
             let m = f.iter().map(|&x| x as f64).sum::<f64>() / f.len() as f64;
             tot += m;
             line += &format!(" {m:.6}");

@@ -18,6 +18,26 @@ pub struct ImageError {
     pub ssim: f64,
 }
 
+/// Per-pixel LDR-FLIP of `test` against `reference`, two RGBA8 sRGB images of
+/// `width`×`height` (alpha ignored); [`compare`] reports its mean.
+pub fn flip_map(
+    reference: &[u8],
+    test: &[u8],
+    width: u32,
+    height: u32,
+) -> anyhow::Result<flip_rs::ErrorMap> {
+    let rgb = |img: &[u8]| -> Vec<u8> {
+        img.chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect()
+    };
+    let r = flip_rs::RgbImage::new(width as usize, height as usize, rgb(reference))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let t = flip_rs::RgbImage::new(width as usize, height as usize, rgb(test))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    flip_rs::ldr_flip(&r, &t, flip_rs::DEFAULT_PPD).map_err(|e| anyhow::anyhow!("FLIP: {e:?}"))
+}
+
 /// Compares two RGBA8 sRGB images of `width`×`height` (alpha ignored).
 pub fn compare(
     reference: &[u8],
@@ -30,17 +50,7 @@ pub fn compare(
         reference.len() == n * 4 && test.len() == n * 4,
         "images must both be {width}×{height} RGBA8"
     );
-    let rgb = |img: &[u8]| -> Vec<u8> {
-        img.chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect()
-    };
-    let r = flip_rs::RgbImage::new(width as usize, height as usize, rgb(reference))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    let t = flip_rs::RgbImage::new(width as usize, height as usize, rgb(test))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    let flip = flip_rs::ldr_flip(&r, &t, flip_rs::DEFAULT_PPD)
-        .map_err(|e| anyhow::anyhow!("FLIP: {e:?}"))?;
+    let flip = flip_map(reference, test, width, height)?;
     let mse = reference
         .chunks_exact(4)
         .zip(test.chunks_exact(4))
