@@ -3,6 +3,12 @@
 // the media between it and the surface), then
 // `surface × transmittance + in-scattered` from the integrated volume at the pixel's
 // depth (000 §3.1.4), the smoke layer over it (issue 15), ACES-fitted tone curve, sRGB, RGBA8 out.
+//
+// Stereo shading (`stereo_shading`): a coupled stereo eye's surfaces take the lights'
+// visibility (the shadow-map lookups or shadow rays) its partner eye found at the same
+// surface point, so the partner's views run first (`main`), writing it, and the coupled
+// eyes after them (`coupled`); a light the partner saw only in part there (a penumbra),
+// or a point the partner does not see, the eye looks up itself.
 
 @group(1) @binding(0) var<storage, read> integrated: array<vec2u>;
 @group(1) @binding(1) var<storage, read_write> output: array<u32>;
@@ -11,6 +17,14 @@
 // This set's smoke layers (premultiplied, fog around the particles included), read when
 // the frame has particles; a 1×1 stub otherwise (shaders/smoke_raster.wgsl).
 @group(1) @binding(5) var smoke: texture_2d_array<f32>;
+// Per pixel of the views coupled eyes read, from each one's `lights_base`, a row of
+// `size.x` after another: the surface's view depth (f16; −1 without a surface) and the
+// first SHARED_LIGHTS lights' visibility (8 bits each; `pack_reach`); a stub when no view
+// is coupled.
+@group(1) @binding(6) var<storage, read_write> partner_lights: array<vec2u>;
+// The slots each entry point shades: [count of `main`'s, count of `coupled`'s, `main`'s
+// slots…, `coupled`'s slots…].
+@group(1) @binding(7) var<storage, read> order: array<u32>;
 // Bindings 10–14: the shadow maps (shaders/shadow_lookup.wgsl).
 
 // fetch_integrated / sample_integrated: shaders/integrated_lookup.wgsl.
@@ -23,51 +37,156 @@ fn srgb(c: vec3f) -> vec3f {
     return select(1.055 * pow(c, vec3f(1.0 / 2.4)) - 0.055, c * 12.92, c <= vec3f(0.0031308));
 }
 
-// The tone-mapped colour of pixel `xy` of view `v` (layer `layer` of the G-buffer);
-// adds the shadow rays it traced to `rays`.
-fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 {
-    let texel = vec2i(xy);
-    let surface = textureLoad(gbuf, texel, layer, 0);
-    let pix = vec2f(xy) + 0.5;
+// A pixel's visible surface: its world point, the normal facing the eye, and its depth.
+struct Surface {
+    p: vec3f,
+    n: vec3f,
+    depth: f32,
+}
+
+// The surface of G-buffer texel `g` seen through pixel centre `pix` of view `v`.
+fn surface_at(v: View, g: vec4u, pix: vec2f) -> Surface {
     let dir = view_ray(v, pix);
-    var color = frame.sky;
-    var depth = v.far;
-    if surface_depth(surface) > 0.0 {
-        depth = surface_depth(surface);
-        // The pixel centre's ray at the surface's view depth.
-        let p = point_at_depth(v, dir, depth);
-        var n = surface_normal(surface);
-        if dot(n, dir) > 0.0 {
-            n = -n;
+    let depth = surface_depth(g);
+    var n = surface_normal(g);
+    if dot(n, dir) > 0.0 {
+        n = -n;
+    }
+    // The pixel centre's ray at the surface's view depth.
+    return Surface(point_at_depth(v, dir, depth), n, depth);
+}
+
+// Lights whose shadowing a partner eye passes on (`stereo_shading`): 8 bits each, six
+// in the two words after the depth's 16 bits.
+const SHARED_LIGHTS: u32 = 6u;
+
+// What a partner eye found at one surface point: for each of the first SHARED_LIGHTS
+// lights, the light's visibility from its shadow map or shadow ray (0 where the light
+// does not reach the surface; the media's transmittance, smooth and cheap to read, each
+// eye reads itself), and which of them it holds (bit i: light i).
+struct Reach {
+    light: array<f32, 6>,
+    known: u32,
+}
+
+// Irradiance at surface `s`: the ambient and every light, through its shadow map or a
+// shadow ray (counted in `rays`), dimmed by the media on the way. The visibility of
+// the lights `reach.known` holds is taken from `reach`; the rest are looked up and, of
+// the first SHARED_LIGHTS, written into it.
+fn surface_irradiance(s: Surface, reach: ptr<function, Reach>, rays: ptr<function, u32>) -> vec3f {
+    let p = s.p;
+    let n = s.n;
+    var irradiance = ambient_irradiance(p, n);
+    // Offset along the normal, scaled with distance (depth precision).
+    let origin = p + n * (2e-3 + s.depth * 2e-4);
+    for (var li = 0u; li < frame.light_count; li++) {
+        let l = lights[li];
+        let tl = to_light(l, origin);
+        let ndl = dot(n, tl.xyz);
+        if ndl <= 0.0 {
+            continue;
         }
-        let albedo = surface_albedo(surface);
-        var irradiance = ambient_irradiance(p, n);
-        // Offset along the normal, scaled with distance (depth precision).
-        let origin = p + n * (2e-3 + depth * 2e-4);
-        for (var li = 0u; li < frame.light_count; li++) {
-            let l = lights[li];
-            let tl = to_light(l, origin);
-            let ndl = dot(n, tl.xyz);
-            if ndl <= 0.0 {
-                continue;
-            }
-            let radiance = light_radiance(l, origin);
-            if all(radiance == vec3f(0.0)) {
-                continue;
-            }
-            var vis = 0.0;
+        let radiance = light_radiance(l, origin);
+        if all(radiance == vec3f(0.0)) {
+            continue;
+        }
+        var vis = 0.0;
+        if ((*reach).known & (1u << min(li, 31u))) != 0u {
+            vis = (*reach).light[li];
+        } else {
             if has_map(li) {
                 vis = map_visibility(li, l, p, n, 0.75);
             } else {
                 *rays += 1u;
                 vis = select(0.0, 1.0, light_visible(l, origin));
             }
-            // The light crossed the media on its way to the surface.
-            if vis > 0.0 {
-                irradiance += radiance * (ndl * vis * surface_transmittance(li, origin));
+            if li < SHARED_LIGHTS {
+                (*reach).light[li] = vis;
             }
         }
-        color = albedo / PI * irradiance;
+        // The light crossed the media on its way to the surface.
+        if vis > 0.0 {
+            irradiance += radiance * (ndl * vis * surface_transmittance(li, origin));
+        }
+    }
+    return irradiance;
+}
+
+// Below this cosine between a surface and the partner's ray the surface turns away
+// within a pixel (a column's silhouette): the eye shades it itself.
+const GRAZING: f32 = 0.3;
+
+// The lights' visibility partner view `w` (slot `v.volume_view`) found for view `v`'s
+// surface `s`, if the partner's nearest pixel to it sees the same surface: its
+// surface's view depth (stored beside the lights') is the depth of `s` in the partner,
+// within 1 % and what the surface's slope spans in a pixel and a half. `known` 0 where
+// it is not.
+fn partner_reach(v: View, w: View, s: Surface) -> Reach {
+    var r: Reach;
+    r.known = 0u;
+    let q = pixel_of(w, s.p);
+    if any(q < vec2f(0.0)) || any(q >= vec2f(w.size)) {
+        return r;
+    }
+    let qi = vec2u(q);
+    let e = partner_lights[w.lights_base + qi.x + qi.y * w.size.x];
+    let depth = dot(s.p - w.position, w.forward);
+    // One pixel's width at the surface, and how far in depth the surface runs over it.
+    let footprint = s.depth * 2.0 * v.tan_y / f32(v.size.y);
+    let c = abs(dot(s.n, normalize(s.p - w.position)));
+    let slope = footprint * sqrt(1.0 - c * c) / max(c, GRAZING);
+    if c < GRAZING || abs(unpack2x16float(e.x).x - depth) > 0.01 * depth + 1.5 * slope {
+        return r;
+    }
+    let lo = unpack4x8unorm(e.x);
+    let hi = unpack4x8unorm(e.y);
+    r.light = array<f32, 6>(lo.z, lo.w, hi.x, hi.y, hi.z, hi.w);
+    // Only the lights wholly seen or wholly hidden there: within a penumbra (or a map's
+    // moiré) the visibility changes from pixel to pixel, and the eye looks it up.
+    for (var li = 0u; li < min(frame.light_count, SHARED_LIGHTS); li++) {
+        if r.light[li] == 0.0 || r.light[li] == 1.0 {
+            r.known |= 1u << li;
+        }
+    }
+    return r;
+}
+
+// `reach`'s lights and view depth `depth` packed for a coupled eye (depth < 0: no
+// surface, never matched).
+fn pack_reach(r: Reach, depth: f32) -> vec2u {
+    let lo = vec2f(r.light[0], r.light[1]);
+    let hi = vec4f(r.light[2], r.light[3], r.light[4], r.light[5]);
+    return vec2u(
+        (pack2x16float(vec2f(depth, 0.0)) & 0xffffu) | (pack4x8unorm(vec4f(0.0, 0.0, lo)) & 0xffff0000u),
+        pack4x8unorm(hi),
+    );
+}
+
+// The tone-mapped colour of pixel `xy` of view `v` (layer `layer` of the G-buffer);
+// adds the shadow rays it traced to `rays`. A `coupled` eye takes its partner's
+// lights' shadowing where it can (counted in `reused`); a view a coupled eye reads
+// writes its own.
+fn shade_pixel(v: View, partner: View, layer: i32, xy: vec2u, coupled: bool, rays: ptr<function, u32>, reused: ptr<function, u32>) -> u32 {
+    let texel = vec2i(xy);
+    let g = textureLoad(gbuf, texel, layer, 0);
+    let pix = vec2f(xy) + 0.5;
+    var color = frame.sky;
+    var depth = v.far;
+    // Lights not looked up (facing away, out of reach) read as partly visible: a coupled
+    // eye looks them up itself.
+    var reach = Reach(array<f32, 6>(0.5, 0.5, 0.5, 0.5, 0.5, 0.5), 0u);
+    if surface_depth(g) > 0.0 {
+        let s = surface_at(v, g, pix);
+        depth = s.depth;
+        if coupled {
+            reach = partner_reach(v, partner, s);
+            *reused += select(0u, 1u, reach.known != 0u);
+        }
+        color = surface_albedo(g) / PI * surface_irradiance(s, &reach, rays);
+    }
+    if v.lights_base != NO_LIGHTS {
+        partner_lights[v.lights_base + xy.x + xy.y * v.size.x] =
+            pack_reach(reach, select(-1.0, depth, surface_depth(g) > 0.0));
     }
     if (frame.flags & FLAG_MEDIA) != 0u {
         let fog = sample_integrated(v, pix, depth);
@@ -88,20 +207,42 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
 // work on 8 neighbouring pixels at a time (coherent shadow rays in `reference`).
 const STRIP: u32 = 4u;
 
-// z runs over viewers.
-@compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(workgroup_id) wg: vec3u, @builtin(local_invocation_id) lid: vec3u) {
+// Shades the row `gid.y` strip of workgroup `wg` of the view in slot `slot`; returns
+// the shadow rays it traced and the pixels that took a light's visibility from the partner.
+fn shade_strip(slot: u32, coupled: bool, gid: vec3u, wg: vec3u, lid: vec3u) -> vec2u {
     var rays = 0u;
-    if gid.z < frame.view_count {
-        let v = views[gid.z];
-        if gid.y < v.size.y {
-            for (var k = 0u; k < STRIP; k++) {
-                let x = (wg.x * STRIP + k) * 8u + lid.x;
-                if x < v.size.x {
-                    output[v.pixel_base + x + gid.y * v.row_stride] = shade_pixel(v, i32(gid.z), vec2u(x, gid.y), &rays);
-                }
+    var reused = 0u;
+    let v = views[slot];
+    // Read once per strip (a coupled eye's partner; else never read).
+    let partner = views[select(slot, v.volume_view, coupled)];
+    if gid.y < v.size.y {
+        for (var k = 0u; k < STRIP; k++) {
+            let x = (wg.x * STRIP + k) * 8u + lid.x;
+            if x < v.size.x {
+                output[v.pixel_base + x + gid.y * v.row_stride] = shade_pixel(v, partner, i32(slot), vec2u(x, gid.y), coupled, &rays, &reused);
             }
         }
     }
-    count(C_SURFACE_RAYS, rays);
+    return vec2u(rays, reused);
+}
+
+// z runs over `main`'s slots in `order`.
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(workgroup_id) wg: vec3u, @builtin(local_invocation_id) lid: vec3u) {
+    var done = vec2u(0u);
+    if gid.z < order[0] {
+        done = shade_strip(order[2u + gid.z], false, gid, wg, lid);
+    }
+    count(C_SURFACE_RAYS, done.x);
+}
+
+// z runs over the coupled eyes' slots in `order` (after `main`).
+@compute @workgroup_size(8, 8, 1)
+fn coupled(@builtin(global_invocation_id) gid: vec3u, @builtin(workgroup_id) wg: vec3u, @builtin(local_invocation_id) lid: vec3u) {
+    var done = vec2u(0u);
+    if gid.z < order[1] {
+        done = shade_strip(order[2u + order[0] + gid.z], true, gid, wg, lid);
+    }
+    count(C_SURFACE_RAYS, done.x);
+    count(C_STEREO_SHADED_PIXELS, done.y);
 }

@@ -405,3 +405,80 @@ fn the_coupled_right_eye_is_as_close_to_truth_as_the_eye_alone() {
     assert!(sums[1] <= sums[0] + 0.003, "{sums:?}");
     assert!(sums[3] <= sums[0] + 0.003, "{sums:?}");
 }
+
+/// Stereo shading (`stereo_shading`): the coupled right eye takes the visibility of the
+/// lights the left eye looked up at the same surface point. The left eye is unchanged;
+/// the right eye takes the sun's visibility at most of its pixels, stays within mean FLIP
+/// 0.02 of rendering it alone, and close to the right eye that looks every light up
+/// itself. At eye distance 0 both eyes are identical; a 1×1 pair renders.
+#[test]
+fn stereo_shading_takes_the_left_eyes_light_visibility() {
+    let scene = colonnade();
+    const SIZE: (u32, u32) = (320, 180);
+    let off = Settings::default();
+    assert!(!off.stereo_shading, "off by default (docs/decisions.md)");
+    let on = Settings {
+        stereo_shading: true,
+        ..off
+    };
+    let eye_m = fogcast::protocol::DEFAULT_EYE_DISTANCE_M as f32;
+    let (own, o) = stereo(&scene, off, eye_m, SIZE);
+    let (shared, s) = stereo(&scene, on, eye_m, SIZE);
+    let [_, (right, _)] = alone(&scene, off, eye_m, SIZE);
+    let pixels = (SIZE.0 * SIZE.1) as u64;
+    let errors = [
+        flip(&right, &own[1], SIZE),
+        flip(&right, &shared[1], SIZE),
+        flip(&own[1], &shared[1], SIZE),
+    ];
+    println!(
+        "right eye: FLIP against alone {:.4} looking up its lights, {:.4} taking the left \
+         eye's ({:.4} between the two); {} of {pixels} pixels took the left eye's",
+        errors[0], errors[1], errors[2], s.stats.stereo_shaded_pixels
+    );
+    assert!(own[0] == shared[0], "the left eye is the same");
+    assert!(
+        own[1] != shared[1],
+        "the right eye took the left eye's visibility"
+    );
+    assert_eq!(o.stats.stereo_shaded_pixels, 0);
+    assert!(
+        s.stats.stereo_shaded_pixels > pixels / 3,
+        "{} of {pixels}",
+        s.stats.stereo_shaded_pixels
+    );
+    assert!(errors[1] <= 0.02, "{errors:?}");
+    assert!(errors[2] <= 0.002, "{errors:?}");
+    // The right eye's composite runs as a pass of its own, after the left eye's.
+    let composite: Vec<_> = s
+        .stats
+        .dispatches
+        .iter()
+        .filter(|(n, _)| n == "composite")
+        .map(|(_, g)| g[2])
+        .collect();
+    assert_eq!(composite, [1, 1]);
+    let memory = |o: &FrameOutput| {
+        o.stats
+            .memory
+            .per_viewer
+            .iter()
+            .any(|(n, _)| n == "stereo_shading")
+    };
+    assert!(memory(&s) && !memory(&o), "reported per viewer when held");
+    // Eye distance 0: the right eye sees what the left eye sees, and takes it exactly.
+    let (eyes, z) = stereo(&scene, on, 0.0, SIZE);
+    assert!(eyes[0] == eyes[1], "both eyes at one point see the same");
+    assert!(z.stats.stereo_shaded_pixels > pixels / 3);
+    // 1×1 eyes.
+    let (tiny, _) = stereo(&scene, on, eye_m, (1, 1));
+    let (tiny_off, _) = stereo(&scene, off, eye_m, (1, 1));
+    assert!(tiny[1][..3].iter().any(|&c| c > 0), "a black eye: {tiny:?}");
+    let diff = tiny[1][..3]
+        .iter()
+        .zip(&tiny_off[1][..3])
+        .map(|(a, b)| a.abs_diff(*b))
+        .max()
+        .unwrap();
+    assert!(diff <= 8, "{tiny:?} against {tiny_off:?}");
+}
