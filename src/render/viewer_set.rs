@@ -341,8 +341,8 @@ impl ViewerSet {
         }
         let pixels = self.vol.layout.width * self.vol.layout.height;
         let mut partners = 0u32;
-        for k in 0..second.len() {
-            let partner = self.gpu_views[second[k] as usize].volume_view as usize;
+        for &slot in &second {
+            let partner = self.gpu_views[slot as usize].volume_view as usize;
             if self.gpu_views[partner].lights_base == NO_LIGHTS {
                 self.gpu_views[partner].lights_base = partners * pixels;
                 partners += 1;
