@@ -4,11 +4,11 @@
 // `surface × transmittance + in-scattered` from the integrated volume at the pixel's
 // depth (000 §3.1.4), the smoke layer over it (issue 15), ACES-fitted tone curve, sRGB, RGBA8 out.
 //
-// Stereo shading (`stereo_shading`): a coupled stereo eye's surfaces take the lights'
-// visibility (the shadow-map lookups or shadow rays) its partner eye found at the same
-// surface point, so the partner's views run first (`main`), writing it, and the coupled
-// eyes after them (`coupled`); a light the partner saw only in part there (a penumbra),
-// or a point the partner does not see, the eye looks up itself.
+// Stereo shading (`stereo_shading`): a coupled stereo eye's surfaces take the irradiance
+// its partner eye found at the same surface point (diffuse light does not depend on the
+// eye), so the partner's views run first (`main`), writing it, and the coupled eyes
+// after them (`coupled`). Where the partner does not see the point, or saw a light there
+// only in part (a penumbra), the eye shades it itself.
 
 @group(1) @binding(0) var<storage, read> integrated: array<vec2u>;
 @group(1) @binding(1) var<storage, read_write> output: array<u32>;
@@ -18,10 +18,10 @@
 // the frame has particles; a 1×1 stub otherwise (shaders/smoke_raster.wgsl).
 @group(1) @binding(5) var smoke: texture_2d_array<f32>;
 // Per pixel of the views coupled eyes read, from each one's `lights_base`, a row of
-// `size.x` after another: the surface's view depth (f16; −1 without a surface) and the
-// first SHARED_LIGHTS lights' visibility (8 bits each; `pack_reach`); a stub when no view
-// is coupled.
-@group(1) @binding(6) var<storage, read_write> partner_lights: array<vec2u>;
+// `size.x` after another, SHARED_WORDS u32s: the surface's irradiance (rgb, f16), its
+// view depth (f16; −1 without a surface, or where a light was seen in part) and its
+// normal (octahedral, 2 × snorm16); a stub when no view is coupled.
+@group(1) @binding(6) var<storage, read_write> partner_light: array<u32>;
 // The slots each entry point shades: [count of `main`'s, count of `coupled`'s, `main`'s
 // slots…, `coupled`'s slots…].
 @group(1) @binding(7) var<storage, read> order: array<u32>;
@@ -56,27 +56,15 @@ fn surface_at(v: View, g: vec4u, pix: vec2f) -> Surface {
     return Surface(point_at_depth(v, dir, depth), n, depth);
 }
 
-// Lights whose shadowing a partner eye passes on (`stereo_shading`): 8 bits each, six
-// in the two words after the depth's 16 bits.
-const SHARED_LIGHTS: u32 = 6u;
-
-// What a partner eye found at one surface point: for each of the first SHARED_LIGHTS
-// lights, the light's visibility from its shadow map or shadow ray (0 where the light
-// does not reach the surface; the media's transmittance, smooth and cheap to read, each
-// eye reads itself), and which of them it holds (bit i: light i).
-struct Reach {
-    light: array<f32, 6>,
-    known: u32,
-}
-
-// Irradiance at surface `s`: the ambient and every light, through its shadow map or a
-// shadow ray (counted in `rays`), dimmed by the media on the way. The visibility of
-// the lights `reach.known` holds is taken from `reach`; the rest are looked up and, of
-// the first SHARED_LIGHTS, written into it.
-fn surface_irradiance(s: Surface, reach: ptr<function, Reach>, rays: ptr<function, u32>) -> vec3f {
+// Irradiance at surface `s` (xyz): the ambient and every light, through its shadow map
+// or a shadow ray (counted in `rays`), dimmed by the media on the way; w = 1 where some
+// light is seen only in part (a penumbra, or a map's moiré), where it changes from pixel
+// to pixel.
+fn surface_irradiance(s: Surface, rays: ptr<function, u32>) -> vec4f {
     let p = s.p;
     let n = s.n;
     var irradiance = ambient_irradiance(p, n);
+    var partial = 0.0;
     // Offset along the normal, scaled with distance (depth precision).
     let origin = p + n * (2e-3 + s.depth * 2e-4);
     for (var li = 0u; li < frame.light_count; li++) {
@@ -91,102 +79,91 @@ fn surface_irradiance(s: Surface, reach: ptr<function, Reach>, rays: ptr<functio
             continue;
         }
         var vis = 0.0;
-        if ((*reach).known & (1u << min(li, 31u))) != 0u {
-            vis = (*reach).light[li];
+        if has_map(li) {
+            vis = map_visibility(li, l, p, n, 0.75);
         } else {
-            if has_map(li) {
-                vis = map_visibility(li, l, p, n, 0.75);
-            } else {
-                *rays += 1u;
-                vis = select(0.0, 1.0, light_visible(l, origin));
-            }
-            if li < SHARED_LIGHTS {
-                (*reach).light[li] = vis;
-            }
+            *rays += 1u;
+            vis = select(0.0, 1.0, light_visible(l, origin));
+        }
+        if vis > 0.0 && vis < 1.0 {
+            partial = 1.0;
         }
         // The light crossed the media on its way to the surface.
         if vis > 0.0 {
             irradiance += radiance * (ndl * vis * surface_transmittance(li, origin));
         }
     }
-    return irradiance;
+    return vec4f(irradiance, partial);
 }
 
 // Below this cosine between a surface and the partner's ray the surface turns away
 // within a pixel (a column's silhouette): the eye shades it itself.
 const GRAZING: f32 = 0.3;
 
-// The lights' visibility partner view `w` (slot `v.volume_view`) found for view `v`'s
-// surface `s`, if the partner's nearest pixel to it sees the same surface: its
-// surface's view depth (stored beside the lights') is the depth of `s` in the partner,
-// within 1 % and what the surface's slope spans in a pixel and a half. `known` 0 where
-// it is not.
-fn partner_reach(v: View, w: View, s: Surface) -> Reach {
-    var r: Reach;
-    r.known = 0u;
+// u32s a pixel in `partner_light`.
+const SHARED_WORDS: u32 = 3u;
+
+// The irradiance partner view `w` (slot `v.volume_view`) found for view `v`'s surface
+// `s` (w = 1), if the partner's nearest pixel to it sees the same surface and saw every
+// light wholly or not at all there: its surface's view depth is the depth of `s` in the
+// partner, within 1 % and what the surface's slope spans in a pixel and a half, and its
+// normal is s's within 11°. Else w = 0.
+fn partner_irradiance(v: View, w: View, s: Surface) -> vec4f {
     let q = pixel_of(w, s.p);
     if any(q < vec2f(0.0)) || any(q >= vec2f(w.size)) {
-        return r;
+        return vec4f(0.0);
     }
     let qi = vec2u(q);
-    let e = partner_lights[w.lights_base + qi.x + qi.y * w.size.x];
+    let at = (w.lights_base + qi.x + qi.y * w.size.x) * SHARED_WORDS;
+    let e = vec3u(partner_light[at], partner_light[at + 1u], partner_light[at + 2u]);
+    let b = unpack2x16float(e.y);
     let depth = dot(s.p - w.position, w.forward);
     // One pixel's width at the surface, and how far in depth the surface runs over it.
     let footprint = s.depth * 2.0 * v.tan_y / f32(v.size.y);
     let c = abs(dot(s.n, normalize(s.p - w.position)));
     let slope = footprint * sqrt(1.0 - c * c) / max(c, GRAZING);
-    if c < GRAZING || abs(unpack2x16float(e.x).x - depth) > 0.01 * depth + 1.5 * slope {
-        return r;
+    let n = oct_decode(unpack2x16snorm(e.z));
+    if c < GRAZING || abs(b.y - depth) > 0.01 * depth + 1.5 * slope || dot(n, s.n) < 0.98 {
+        return vec4f(0.0);
     }
-    let lo = unpack4x8unorm(e.x);
-    let hi = unpack4x8unorm(e.y);
-    r.light = array<f32, 6>(lo.z, lo.w, hi.x, hi.y, hi.z, hi.w);
-    // Only the lights wholly seen or wholly hidden there: within a penumbra (or a map's
-    // moiré) the visibility changes from pixel to pixel, and the eye looks it up.
-    for (var li = 0u; li < min(frame.light_count, SHARED_LIGHTS); li++) {
-        if r.light[li] == 0.0 || r.light[li] == 1.0 {
-            r.known |= 1u << li;
-        }
-    }
-    return r;
-}
-
-// `reach`'s lights and view depth `depth` packed for a coupled eye (depth < 0: no
-// surface, never matched).
-fn pack_reach(r: Reach, depth: f32) -> vec2u {
-    let lo = vec2f(r.light[0], r.light[1]);
-    let hi = vec4f(r.light[2], r.light[3], r.light[4], r.light[5]);
-    return vec2u(
-        (pack2x16float(vec2f(depth, 0.0)) & 0xffffu) | (pack4x8unorm(vec4f(0.0, 0.0, lo)) & 0xffff0000u),
-        pack4x8unorm(hi),
-    );
+    return vec4f(unpack2x16float(e.x), b.x, 1.0);
 }
 
 // The tone-mapped colour of pixel `xy` of view `v` (layer `layer` of the G-buffer);
 // adds the shadow rays it traced to `rays`. A `coupled` eye takes its partner's
-// lights' shadowing where it can (counted in `reused`); a view a coupled eye reads
-// writes its own.
+// irradiance where it can (counted in `reused`); a view a coupled eye reads writes its
+// own.
 fn shade_pixel(v: View, partner: View, layer: i32, xy: vec2u, coupled: bool, rays: ptr<function, u32>, reused: ptr<function, u32>) -> u32 {
     let texel = vec2i(xy);
     let g = textureLoad(gbuf, texel, layer, 0);
     let pix = vec2f(xy) + 0.5;
     var color = frame.sky;
     var depth = v.far;
-    // Lights not looked up (facing away, out of reach) read as partly visible: a coupled
-    // eye looks them up itself.
-    var reach = Reach(array<f32, 6>(0.5, 0.5, 0.5, 0.5, 0.5, 0.5), 0u);
+    // What a coupled eye reads: irradiance, depth (−1: do not take it), normal.
+    var handoff = vec3u(0u, pack2x16float(vec2f(0.0, -1.0)), 0u);
     if surface_depth(g) > 0.0 {
         let s = surface_at(v, g, pix);
         depth = s.depth;
+        var irr = vec4f(0.0);
         if coupled {
-            reach = partner_reach(v, partner, s);
-            *reused += select(0u, 1u, reach.known != 0u);
+            irr = partner_irradiance(v, partner, s);
+            *reused += u32(irr.w);
         }
-        color = surface_albedo(g) / PI * surface_irradiance(s, &reach, rays);
+        if irr.w == 0.0 {
+            irr = surface_irradiance(s, rays);
+            handoff = vec3u(
+                pack2x16float(irr.xy),
+                pack2x16float(vec2f(irr.z, select(s.depth, -1.0, irr.w > 0.0))),
+                pack2x16snorm(oct_encode(s.n)),
+            );
+        }
+        color = surface_albedo(g) / PI * irr.xyz;
     }
     if v.lights_base != NO_LIGHTS {
-        partner_lights[v.lights_base + xy.x + xy.y * v.size.x] =
-            pack_reach(reach, select(-1.0, depth, surface_depth(g) > 0.0));
+        let at = (v.lights_base + xy.x + xy.y * v.size.x) * SHARED_WORDS;
+        partner_light[at] = handoff.x;
+        partner_light[at + 1u] = handoff.y;
+        partner_light[at + 2u] = handoff.z;
     }
     if (frame.flags & FLAG_MEDIA) != 0u {
         let fog = sample_integrated(v, pix, depth);
@@ -208,7 +185,7 @@ fn shade_pixel(v: View, partner: View, layer: i32, xy: vec2u, coupled: bool, ray
 const STRIP: u32 = 4u;
 
 // Shades the row `gid.y` strip of workgroup `wg` of the view in slot `slot`; returns
-// the shadow rays it traced and the pixels that took a light's visibility from the partner.
+// the shadow rays it traced and the pixels that took the partner's irradiance.
 fn shade_strip(slot: u32, coupled: bool, gid: vec3u, wg: vec3u, lid: vec3u) -> vec2u {
     var rays = 0u;
     var reused = 0u;

@@ -95,9 +95,9 @@ pub fn largest_binding(
 /// shaders/gbuffer_surface.wgsl) and the depth attachment (32f).
 const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 4;
 
-/// Bytes per pixel of `ViewerVolumes::stereo_shading`: view depth (f16) and six lights'
-/// visibility (8 bits each).
-pub(crate) const STEREO_SHADING_BYTES_PER_PIXEL: u64 = 8;
+/// Bytes per pixel of `ViewerVolumes::stereo_shading`: the surface's irradiance (rgb
+/// f16), view depth (f16) and normal (octahedral, 2 × snorm16).
+pub(crate) const STEREO_SHADING_BYTES_PER_PIXEL: u64 = 12;
 
 /// Format of the packed G-buffer: view depth (f32 bits), octahedral normal (2 × snorm16),
 /// albedo (rgba8), one spare word.

@@ -294,7 +294,9 @@ mod tests {
         };
         let two = viewer_memory_bytes(&off, 2, 320, 360, 0);
         assert!(fits(off, two) && !fits(off, two - 1));
-        assert!(fits(on, two + 8 * eye) && !fits(on, two + 8 * eye - 1));
+        let extra = stereo_shading_bytes(&on, 1, 320, 360);
+        assert_eq!(extra, 12 * eye);
+        assert!(fits(on, two + extra) && !fits(on, two + extra - 1));
         // A mono view has no partner: nothing added.
         assert_eq!(partners(1), 0);
         assert_eq!(partners(2), 1);
