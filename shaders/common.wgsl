@@ -109,7 +109,7 @@ struct View {
     volume_view: u32,   // the slot whose froxels this view integrates beyond its own slices (coupled stereo)
     light_slices: u32,  // slices it lights itself: all, a coupled eye's near field, or 0
     origin: vec3f,      // where its froxel volume is lit from: its eye, or a stereo head's midpoint
-    lights_base: u32,   // its lights' visibility for a coupled eye (composite.wgsl); NO_LIGHTS: none
+    _pad_origin: u32,
 }
 
 // The view whose froxels view `v`'s slot holds: `v` itself, or, for the first eye of a
@@ -128,7 +128,6 @@ fn volume_on_own_rays(v: View) -> bool {
 }
 
 const NO_HISTORY: u32 = 0xffffffffu;
-const NO_LIGHTS: u32 = 0xffffffffu;
 
 // Light.kind (LightKind::gpu_code in src/scene/types.rs)
 const LIGHT_DIRECTIONAL: u32 = 0u;
@@ -295,7 +294,6 @@ const C_LAYER_BRICKS: u32 = 9u;  // media layer: bricks asked for this frame (in
 const C_LAYER_NODES: u32 = 10u;  // media layer: nodes filled this frame
 const C_GRID_MEDIA_VOXELS: u32 = 11u; // grid_media: voxels whose density was filled this frame
 const C_RASTER_TRIANGLES: u32 = 12u; // triangle_cull: static triangles kept for the G-buffer (shaders/triangle_cull.wgsl)
-const C_STEREO_SHADED_PIXELS: u32 = 13u; // stereo_shading: coupled eyes' pixels that took a light's visibility from the partner
 
 // Sparse grid (paper 000 §5.1's proposal): the grid is cut into bricks of 8³ voxels; a
 // table over all bricks holds 0 (unused), slot + 1 (allocated in the pool) or

@@ -1,6 +1,4 @@
-//! Composite + tone map, all viewers in one dispatch, with `shaders/composite.wgsl`;
-//! with coupled stereo eyes and `stereo_shading`, a second dispatch for those eyes after
-//! their partners (`ViewerSet::composite_phases`).
+//! Composite + tone map, all viewers in one dispatch, with `shaders/composite.wgsl`.
 
 use super::viewer_volumes::gbuffer_entry;
 use super::{dispatch, shadow_maps::ShadowMaps, Stage, Timestamps, ViewerSet};
@@ -11,10 +9,6 @@ use crate::gpu::{storage_entry, GpuContext};
 pub(crate) struct Composite {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
-    /// The coupled eyes' pass (entry point `coupled`), after `pipeline`'s.
-    coupled: wgpu::ComputePipeline,
-    /// Bound as `stereo_shading` of a set without coupled eyes (never read or written).
-    no_stereo_shading: wgpu::Buffer,
     /// Bound as the smoke layers of a set without them (never read: no particles).
     no_smoke: wgpu::Texture,
 }
@@ -42,8 +36,6 @@ impl Composite {
                 storage_entry(1, ReadWrite),
                 gbuffer_entry(2),
                 texture_entry(5),
-                storage_entry(6, ReadWrite),
-                storage_entry(7, Read),
             ],
         );
         let module = super::stage_shader(
@@ -71,18 +63,6 @@ impl Composite {
         });
         Composite {
             pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),
-            coupled: ctx.compute_pipeline_entry(
-                "composite coupled eyes",
-                &module,
-                &[scene_layout, &layout],
-                "coupled",
-            ),
-            no_stereo_shading: ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("no stereo shading"),
-                size: 16,
-                usage: wgpu::BufferUsages::STORAGE,
-                mapped_at_creation: false,
-            }),
             layout,
             no_smoke,
         }
@@ -122,35 +102,15 @@ impl Composite {
                 binding: 5,
                 resource: wgpu::BindingResource::TextureView(&smoke),
             },
-            wgpu::BindGroupEntry {
-                binding: 6,
-                resource: volumes
-                    .stereo_shading
-                    .as_ref()
-                    .unwrap_or(&self.no_stereo_shading)
-                    .as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 7,
-                resource: volumes.composite_order.as_entire_binding(),
-            },
         ];
         let bg = maps.stage_bind_group(ctx, "composite", &self.layout, entries);
-        let [x, y, _] = volumes.groups.pixels;
-        for (pipeline, views) in [&self.pipeline, &self.coupled]
-            .into_iter()
-            .zip(set.composite_phases)
-        {
-            if views > 0 {
-                dispatch(
-                    enc,
-                    ts,
-                    Stage::Composite,
-                    pipeline,
-                    &[&set.bind_group, &bg],
-                    [x, y, views],
-                );
-            }
-        }
+        dispatch(
+            enc,
+            ts,
+            Stage::Composite,
+            &self.pipeline,
+            &[&set.bind_group, &bg],
+            volumes.groups.pixels,
+        );
     }
 }

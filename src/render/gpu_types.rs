@@ -28,7 +28,7 @@ pub(crate) const FLAG_GRID_MEDIA: u32 = 65536;
 pub(crate) const FLAG_GRID_MEDIA_MOVES: u32 = 131072;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
-pub(crate) const COUNTERS: usize = 14;
+pub(crate) const COUNTERS: usize = 13;
 pub(crate) const C_GRID_RAYS: usize = 0;
 pub(crate) const C_FRUSTUM_RAYS: usize = 1;
 pub(crate) const C_LIGHTING_RAYS: usize = 2;
@@ -42,7 +42,6 @@ pub(crate) const C_LAYER_BRICKS: usize = 9;
 pub(crate) const C_LAYER_NODES: usize = 10;
 pub(crate) const C_GRID_MEDIA_VOXELS: usize = 11;
 pub(crate) const C_RASTER_TRIANGLES: usize = 12;
-pub(crate) const C_STEREO_SHADED_PIXELS: usize = 13;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
@@ -132,17 +131,11 @@ pub(crate) struct ViewGpu {
     /// Where its froxel volume is lit from: its eye, or for the first eye of a stereo
     /// head (`stereo_head`) the midpoint of the head's eyes (`volume_of` in common.wgsl).
     pub origin: [f32; 3],
-    /// Where the visibility of the lights at its pixels' surfaces starts in the set's
-    /// `stereo_shading` buffer, for a view whose coupled stereo partner reads it;
-    /// [`NO_LIGHTS`]: none.
-    pub lights_base: u32,
+    pub _pad: u32,
 }
 
 /// `ViewGpu::history_base` of a viewer without last frame's froxels.
 pub(crate) const NO_HISTORY: u32 = u32::MAX;
-
-/// `ViewGpu::lights_base` of a view no coupled eye reads.
-pub(crate) const NO_LIGHTS: u32 = u32::MAX;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]

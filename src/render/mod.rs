@@ -49,9 +49,7 @@ pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
 pub use target::{stereo_eyes, FrameOutput, FrameTarget, TargetView, TargetsOutput};
 pub use triangle_cull::{triangle_list_bytes_per_view, OCCLUSION_MIN_TRIANGLES};
 pub use viewer_set::ViewerId;
-pub use viewer_volumes::{
-    largest_binding, stereo_shading_bytes, viewer_memory_bytes, ViewerLayout, ViewerVolumes,
-};
+pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
 pub use world::{Lookup, World};
 
 use crate::gpu::GpuContext;
@@ -568,15 +566,7 @@ fn dispatches(
                 .values()
                 .filter_map(|s| s.vol.smoke.as_ref().map(|b| b.workgroups(particles)))
                 .collect(),
-            // One pass, or with `stereo_shading` a second one for the coupled eyes.
-            Stage::Composite => sets
-                .values()
-                .flat_map(|s| {
-                    let [x, y, _] = s.vol.groups.pixels;
-                    let phases = s.composite_phases.into_iter().filter(|&n| n > 0);
-                    phases.map(move |n| [x, y, n])
-                })
-                .collect(),
+            Stage::Composite => per_set(|g| g.pixels).collect(),
         };
         out.extend(groups.into_iter().map(|g| (stage.name(), g)));
     }

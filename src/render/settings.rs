@@ -332,18 +332,6 @@ settings! {
     // Reports from before a setting existed read it as off (`serde(default)`).
     #[serde(default)]
     occlusion_cull: bool = false;
-
-    /// Stereo shading: a coupled stereo eye (one that reads its partner's froxels,
-    /// `stereo_share_m`) takes the surface irradiance its partner computed at the same
-    /// surface point, found by projecting the point into the partner and comparing the
-    /// partner's surface there; only where the partner does not see it does the eye
-    /// shade the surface itself (off: every eye shades every surface).
-    ///
-    /// Diffuse surfaces reflect the same light toward both eyes, so the partner's
-    /// shadow-map lookups serve both (docs/decisions.md, "Stereo shading").
-    // Reports from before a setting existed read it as off (`serde(default)`).
-    #[serde(default)]
-    stereo_shading: bool = false;
 }
 
 // What reports from before these settings existed read as (and their defaults).

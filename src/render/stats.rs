@@ -125,10 +125,6 @@ pub struct FrameStats {
     /// included (what the views draw without `triangle_cull`).
     #[serde(default)]
     pub raster_triangles_in_clusters: u64,
-    /// `stereo_shading`: pixels of coupled stereo eyes lit with the surface irradiance
-    /// their partners computed (the rest of their surface pixels shaded themselves).
-    #[serde(default)]
-    pub stereo_shaded_pixels: u64,
     /// World media layer: bricks holding media after this frame (the pool grows for the
     /// next frame when the bricks seen did not fit).
     #[serde(default)]
@@ -259,7 +255,6 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         grid_media_voxels: c(C_GRID_MEDIA_VOXELS),
         raster_triangles: i.raster_triangles.0,
         raster_triangles_in_clusters: i.raster_triangles.1,
-        stereo_shaded_pixels: c(C_STEREO_SHADED_PIXELS),
         layer_bricks_in_use,
         layer_pool_bricks: layer.map_or(0, |l| u64::from(l.plan().capacity)),
         layer_bytes_in_use: layer.map_or(0, |l| layer_bricks_in_use * l.plan().brick_bytes()),

@@ -6,7 +6,7 @@
 
 use super::froxel_lighting::FroxelHistory;
 use super::gbuffer::RasterView;
-use super::gpu_types::{FrameGpu, ViewGpu, NO_HISTORY, NO_LIGHTS};
+use super::gpu_types::{FrameGpu, ViewGpu, NO_HISTORY};
 use super::scene_gpu::SceneGpu;
 use super::smoke_view::SmokeBuffers;
 use super::{FrameTarget, Settings, ViewerLayout, ViewerVolumes};
@@ -53,10 +53,6 @@ pub(crate) struct ViewerSet {
     /// Views that light froxels of their own this frame (whole volumes and coupled eyes'
     /// near fields): slots `0..volume_views`.
     pub(crate) volume_views: u32,
-    /// Views the composite's two passes shade: every view but the coupled eyes that take
-    /// their partners' lights' visibility (`stereo_shading`), then those eyes
-    /// (`vol.composite_order` lists their slots).
-    pub(crate) composite_phases: [u32; 2],
 }
 
 impl ViewerSet {
@@ -83,7 +79,6 @@ impl ViewerSet {
             ids: Vec::new(),
             history: FroxelHistory::default(),
             volume_views: 0,
-            composite_phases: [0, 0],
         })
     }
 
@@ -298,14 +293,13 @@ impl ViewerSet {
                 volume_view,
                 light_slices: p.light_slices,
                 origin: p.origin.to_array(),
-                lights_base: NO_LIGHTS,
+                _pad: 0,
             });
             self.ids.push(v.id);
             cameras.push(*c);
         }
         self.raster_views =
             RasterView::for_cameras(&cameras, (layout.width, layout.height), near, far);
-        self.order_composite(ctx, settings)?;
         let owners = self.volume_views;
         self.vol.groups.columns[2] = owners;
         self.vol.groups.frustum[2] = owners;
@@ -321,48 +315,6 @@ impl ViewerSet {
             let view_projs: Vec<_> = self.gpu_views.iter().map(|v| v.view_proj).collect();
             smoke.write_views(ctx, &view_projs, settings.smoke_simpson_steps);
         }
-        Ok(())
-    }
-
-    /// With `stereo_shading`, the composite shades the coupled eyes (views that read a
-    /// partner's froxels) in a second pass, after their partners, which write their
-    /// lights' visibility for them (from `lights_base`, in a buffer allocated for the
-    /// most partners a frame has had); else every view in one pass.
-    fn order_composite(&mut self, ctx: &GpuContext, settings: &Settings) -> anyhow::Result<()> {
-        let coupled =
-            |slot: usize, v: &ViewGpu| settings.stereo_shading && v.volume_view as usize != slot;
-        let (mut first, mut second) = (Vec::new(), Vec::new());
-        for (slot, v) in self.gpu_views.iter().enumerate() {
-            if coupled(slot, v) {
-                second.push(slot as u32);
-            } else {
-                first.push(slot as u32);
-            }
-        }
-        let pixels = self.vol.layout.width * self.vol.layout.height;
-        let mut partners = 0u32;
-        for &slot in &second {
-            let partner = self.gpu_views[slot as usize].volume_view as usize;
-            if self.gpu_views[partner].lights_base == NO_LIGHTS {
-                self.gpu_views[partner].lights_base = partners * pixels;
-                partners += 1;
-            }
-        }
-        let bytes =
-            partners as u64 * pixels as u64 * super::viewer_volumes::STEREO_SHADING_BYTES_PER_PIXEL;
-        if bytes > self.vol.stereo_shading.as_ref().map_or(0, |b| b.size()) {
-            self.vol.stereo_shading =
-                Some(ctx.storage("stereo shading", bytes, wgpu::BufferUsages::empty())?);
-        }
-        self.composite_phases = [first.len() as u32, second.len() as u32];
-        let order: Vec<u32> = self
-            .composite_phases
-            .into_iter()
-            .chain(first)
-            .chain(second)
-            .collect();
-        ctx.queue
-            .write_buffer(&self.vol.composite_order, 0, bytemuck::cast_slice(&order));
         Ok(())
     }
 

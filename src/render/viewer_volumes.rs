@@ -95,10 +95,6 @@ pub fn largest_binding(
 /// shaders/gbuffer_surface.wgsl) and the depth attachment (32f).
 const GBUFFER_BYTES_PER_PIXEL: u64 = 16 + 4;
 
-/// Bytes per pixel of `ViewerVolumes::stereo_shading`: the surface's irradiance (rgb
-/// f16), view depth (f16) and normal (octahedral, 2 × snorm16).
-pub(crate) const STEREO_SHADING_BYTES_PER_PIXEL: u64 = 12;
-
 /// Format of the packed G-buffer: view depth (f32 bits), octahedral normal (2 × snorm16),
 /// albedo (rgba8), one spare word.
 pub(crate) const GBUFFER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
@@ -140,21 +136,6 @@ pub fn viewer_memory_bytes(
         0
     };
     buffers + count as u64 * (pixels * GBUFFER_BYTES_PER_PIXEL + smoke)
-}
-
-/// GPU memory of `stereo_shading` for `partners` views of `width`×`height` that coupled
-/// stereo eyes read (0 with the setting off): what the server's admission budget adds
-/// for each stereo session's first eye.
-pub fn stereo_shading_bytes(
-    settings: &super::Settings,
-    partners: u64,
-    width: u32,
-    height: u32,
-) -> u64 {
-    if !settings.stereo_shading {
-        return 0;
-    }
-    partners * width as u64 * height as u64 * STEREO_SHADING_BYTES_PER_PIXEL
 }
 
 /// Dispatch sizes of the per-viewer stages, computed once per allocation.
@@ -205,14 +186,6 @@ pub struct ViewerVolumes {
     pub(crate) gbuf_depth: wgpu::Texture,
     /// Smoke proxies and layers (a scene with emitters only; smoke_view.rs).
     pub(crate) smoke: Option<super::smoke_view::SmokeBuffers>,
-    /// The composite's slot order: [views of its first pass, of its second, the slots…]
-    /// (`ViewerSet::composite_phases`; shaders/composite.wgsl).
-    pub(crate) composite_order: wgpu::Buffer,
-    /// The lights' visibility at the surfaces of views that coupled stereo eyes read
-    /// (`stereo_shading`; shaders/composite.wgsl), from each one's `lights_base`;
-    /// allocated when a frame first has a coupled eye, for the most such views a frame
-    /// has had.
-    pub(crate) stereo_shading: Option<wgpu::Buffer>,
 }
 
 impl ViewerVolumes {
@@ -280,12 +253,6 @@ impl ViewerVolumes {
             gbuf: tex("gbuffer", GBUFFER_FORMAT),
             gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
             smoke: None,
-            composite_order: ctx.storage(
-                "composite order",
-                (count as u64 + 2) * 4,
-                wgpu::BufferUsages::empty(),
-            )?,
-            stereo_shading: None,
         })
     }
 
@@ -329,9 +296,6 @@ impl ViewerVolumes {
         ];
         if let Some(s) = &self.smoke {
             list.push(("smoke", s.bytes_per_viewer(pixels)));
-        }
-        if self.stereo_shading.is_some() {
-            list.push(("stereo_shading", pixels * STEREO_SHADING_BYTES_PER_PIXEL));
         }
         list
     }

@@ -13,7 +13,7 @@ use super::validate::{ProtocolError, SessionSpec, SpecLimits};
 use crate::protocol::ErrorCode;
 #[cfg(doc)]
 use crate::render::triangle_list_bytes_per_view;
-use crate::render::{largest_binding, stereo_shading_bytes, viewer_memory_bytes, Settings};
+use crate::render::{largest_binding, viewer_memory_bytes, Settings};
 use std::collections::BTreeMap;
 
 /// The limits views are admitted against.
@@ -35,25 +35,18 @@ pub(crate) struct Budget {
     pub(crate) triangle_lists_per_view: u64,
 }
 
-/// What is rendered now: views per view size, and of them the views a coupled eye may
-/// read (`stereo_shading`).
+/// What is rendered now: views per view size.
 #[derive(Debug, Default, Clone)]
 pub(crate) struct Usage {
     views_by_size: BTreeMap<(u32, u32), u64>,
-    partners_by_size: BTreeMap<(u32, u32), u64>,
-}
-
-/// Views of a session of `views` that coupled eyes may read: each such view has a
-/// coupled eye of its own in the session (`stereo_pairs`), so at most half.
-fn partners(views: u32) -> u64 {
-    views as u64 / 2
 }
 
 impl Usage {
     pub(crate) fn add(&mut self, spec: &SessionSpec) {
-        let size = (spec.view_width, spec.view_height);
-        *self.views_by_size.entry(size).or_default() += spec.views as u64;
-        *self.partners_by_size.entry(size).or_default() += partners(spec.views);
+        *self
+            .views_by_size
+            .entry((spec.view_width, spec.view_height))
+            .or_default() += spec.views as u64;
     }
 
     fn pixels(&self) -> u64 {
@@ -82,15 +75,11 @@ impl Budget {
         }
         let mut sizes = used.views_by_size.clone();
         *sizes.entry((w, h)).or_default() += spec.views as u64;
-        let mut partner_views = used.partners_by_size.clone();
-        *partner_views.entry((w, h)).or_default() += partners(spec.views);
         let memory: u64 = sizes
             .iter()
             .map(|(&(sw, sh), &n)| {
-                let p = partner_views.get(&(sw, sh)).copied().unwrap_or(0);
                 viewer_memory_bytes(&self.settings, n as usize, sw, sh, self.smoke_particles)
                     + n * self.triangle_lists_per_view
-                    + stereo_shading_bytes(&self.settings, p, sw, sh)
             })
             .sum();
         if memory > self.max_view_memory_bytes {
@@ -266,40 +255,5 @@ mod tests {
                 &LIMITS,
             )
             .unwrap();
-    }
-
-    #[test]
-    fn stereo_shading_adds_a_stereo_sessions_first_eye_to_the_budget() {
-        let stereo =
-            |w, h| SessionSpec::validate(w, h, Layout::Stereo, None, None, None, &LIMITS).unwrap();
-        let off = Settings::default();
-        let on = Settings {
-            stereo_shading: true,
-            ..off
-        };
-        // One 640×360 stereo session: two 320×360 eyes, the first read by the second.
-        let eye = 320 * 360;
-        let fits = |settings: Settings, limit: u64| {
-            let budget = Budget {
-                settings,
-                max_binding_bytes: u64::MAX,
-                max_pixels_per_frame: u64::MAX,
-                max_view_memory_bytes: limit,
-                smoke_particles: 0,
-                triangle_lists_per_view: 0,
-            };
-            budget
-                .admit(&Usage::default(), &stereo(640, 360), &LIMITS)
-                .is_ok()
-        };
-        let two = viewer_memory_bytes(&off, 2, 320, 360, 0);
-        assert!(fits(off, two) && !fits(off, two - 1));
-        let extra = stereo_shading_bytes(&on, 1, 320, 360);
-        assert_eq!(extra, 12 * eye);
-        assert!(fits(on, two + extra) && !fits(on, two + extra - 1));
-        // A mono view has no partner: nothing added.
-        assert_eq!(partners(1), 0);
-        assert_eq!(partners(2), 1);
-        assert_eq!(stereo_shading_bytes(&off, 1, 320, 360), 0);
     }
 }
