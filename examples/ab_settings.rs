@@ -3,14 +3,16 @@
 //! frames (B over A). Lavapipe's frame times drift by ±10 % between runs; frames rendered
 //! back to back drift together, so a few percent show where two separate runs cannot.
 //!
-//! `cargo run --example ab_settings -- SCENE A B [FRAMES] [HEADS] [mono|one-eye]`
+//! `cargo run --example ab_settings -- SCENE A B [FRAMES] [HEADS] [mono|one-eye|stereo] [DT]`
 //!
 //! A and B are `key=value,…` over `shared`'s defaults (`-`: the defaults), as a bench
 //! `--variant` takes them. The targets are HEADS stereo sessions (320×180 per eye, eyes
 //! 6.4 cm apart) at the heads of the scene's camera path at t = 0, or HEADS mono viewers
 //! with `mono`. With `one-eye`, A renders the stereo sessions and B each session's
 //! first eye alone as a mono view (issue 16's "stereo session / one eye", paired frame
-//! by frame). Two warm-up frames each; FRAMES (default 12) measured frames each.
+//! by frame). Two warm-up frames each; FRAMES (default 12) measured frames each. With
+//! DT the heads move along the path, the n-th pair of frames at scene time n·DT seconds
+//! (default 0: every frame at t = 0); the fog stages' rays are reported too.
 //! Example: `cargo run --example ab_settings -- colonnade - stereo_head=on 20 2`.
 
 use anyhow::Context as _;
@@ -38,7 +40,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [scene_name, a, b, rest @ ..] = args.as_slice() else {
-        anyhow::bail!("usage: ab_settings SCENE A B [FRAMES] [HEADS] [mono|one-eye]");
+        anyhow::bail!("usage: ab_settings SCENE A B [FRAMES] [HEADS] [mono|one-eye|stereo] [DT]");
     };
     let frames: usize = rest
         .first()
@@ -47,6 +49,7 @@ fn main() -> anyhow::Result<()> {
     let heads: usize = rest.get(1).map_or(Ok(1), |s| s.parse()).context("HEADS")?;
     let mono = rest.get(2).is_some_and(|s| s == "mono");
     let one_eye = rest.get(2).is_some_and(|s| s == "one-eye");
+    let dt: f32 = rest.get(3).map_or(Ok(0.0), |s| s.parse()).context("DT")?;
     anyhow::ensure!(
         frames > 0 && heads > 0,
         "FRAMES and HEADS must be at least 1"
@@ -55,7 +58,6 @@ fn main() -> anyhow::Result<()> {
     let scene = Arc::new(Scene::load(scene_name)?);
     let renderer = |o: &str| Renderer::new(ctx.clone(), scene.clone(), settings(o)?);
     let mut renderers = [renderer(a)?, renderer(b)?];
-    let heads = scene.camera.viewers(heads, 0.0);
     let target = |i: usize, c, mono| {
         if mono {
             FrameTarget::single(i as u64, c, 320, 180)
@@ -63,22 +65,23 @@ fn main() -> anyhow::Result<()> {
             FrameTarget::stereo(2 * i as u64, c, 0.064, 320, 180)
         }
     };
-    let targets: Vec<FrameTarget> = heads
-        .iter()
-        .enumerate()
-        .map(|(i, &c)| target(i, c, mono))
-        .collect();
-    let eyes: Vec<FrameTarget> = heads
-        .iter()
-        .enumerate()
-        .map(|(i, &c)| target(i, stereo_eyes(c, 0.064)[0], true))
-        .collect();
-    // Per renderer: stage → GPU ms of each measured frame.
+    // Per renderer: stage → GPU ms of each measured frame (and rays, as "rays: …").
     let mut ms: [BTreeMap<String, Vec<f64>>; 2] = Default::default();
     for f in 0..2 * (WARMUP + frames) {
-        let k = f % 2;
-        let which = if one_eye && k == 1 { &eyes } else { &targets };
-        let out = renderers[k].render_targets(which, 0.0)?;
+        let (k, t) = (f % 2, (f / 2) as f32 * dt);
+        let heads = scene.camera.viewers(heads, t);
+        let which: Vec<FrameTarget> = heads
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| {
+                if one_eye && k == 1 {
+                    target(i, stereo_eyes(c, 0.064)[0], true)
+                } else {
+                    target(i, c, mono)
+                }
+            })
+            .collect();
+        let out = renderers[k].render_targets(&which, t)?;
         if f < 2 * WARMUP {
             continue;
         }
@@ -88,6 +91,13 @@ fn main() -> anyhow::Result<()> {
         }
         let frame = stages.iter().map(|s| s.gpu_ms).sum();
         ms[k].entry("frame".into()).or_default().push(frame);
+        let r = &out.stats.rays;
+        for (name, n) in [
+            ("rays: shared_grid", r.shared_grid),
+            ("rays: froxel_lighting", r.froxel_lighting),
+        ] {
+            ms[k].entry(name.into()).or_default().push(n as f64);
+        }
     }
     println!("{scene_name}: A = {a}, B = {b}; {frames} frames each, GPU ms (medians)");
     println!("| stage | A | B | B / A, median of per-frame ratios |");

@@ -83,6 +83,7 @@ const FLAG_FROXEL_MAPS: u32 = 16384u; // shared: froxels read the maps of the li
 const FLAG_MAP_EDGES: u32 = 32768u; // shared: where the grid's voxels disagree, the map
 const FLAG_GRID_MEDIA: u32 = 65536u; // shared: the grid carries the costly media's density (grid_density)
 const FLAG_GRID_MEDIA_MOVES: u32 = 131072u; // grid_media: the media move (refill every needed voxel each frame)
+const FLAG_FROXEL_REQUESTS: u32 = 262144u; // no request pass: froxels request the voxels they find unfilled
 
 struct View {
     view_proj: mat4x4f,
@@ -327,6 +328,14 @@ fn request_bit(r: vec3u) -> vec2u {
     let d = frame.grid_dims;
     let row_words = (d.x + 32u) / 32u;
     return vec2u(r.x / 32u + row_words * (r.y + (d.y + 1u) * r.z), 1u << (r.x % 32u));
+}
+
+// The dense grid's request bit of a lookup whose lowest voxel is `c` (the nearest voxel,
+// or the lowest of the 8 trilinear ones): `c` clamped into the grid (from −1 with
+// `trilinear`: such a lookup reads voxel 0 as its upper corner), as a request coordinate.
+fn lookup_request_bit(c: vec3i, trilinear: bool) -> vec2u {
+    let lowest = select(0, -1, trilinear);
+    return request_bit(vec3u(clamp(c, vec3i(lowest), vec3i(frame.grid_dims) - 1) + 1));
 }
 
 const PI: f32 = 3.14159265358979;

@@ -14,6 +14,9 @@
 // FLAG_GRID_MEDIA: the grid's media density, 8 bits per voxel in the grid's layout
 // (shaders/shared_grid.wgsl fills it).
 @group(1) @binding(6) var<storage, read> grid_density: array<u32>;
+// FLAG_FROXEL_REQUESTS: the grid's requests (grid_requests.wgsl's dense layout), made
+// here for the next frame's grid pass instead of by a request pass before it.
+@group(1) @binding(7) var<storage, read_write> requests: array<atomic<u32>>;
 
 // A voxel of a sparse grid whose brick was not allocated (pool full).
 const MASK_MISSING: u32 = 0x100u;
@@ -36,10 +39,12 @@ fn grid_mask(c: vec3i) -> u32 {
 // so the two x-neighbours of each (y, z) corner pair come from one word three times in
 // four (5 reads instead of 8 on average). Same sums, in the same order, as the
 // voxel-by-voxel read. With `media`, the grid's media density too, from the same words
-// of `grid_density`.
+// of `grid_density`, and whether one of the 8 voxels is not filled yet (code 0: not
+// requested before; FLAG_FROXEL_REQUESTS reads it where there is no request pass).
 fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
     var vis: array<f32, 8>;
     var density = 0.0;
+    var unfilled = false;
     let top = vec3i(frame.grid_dims) - 1;
     let x0 = u32(clamp(base.x, 0, top.x));
     let x1 = u32(clamp(base.x + 1, 0, top.x));
@@ -70,13 +75,14 @@ fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
             if x1 / 4u != x0 / 4u {
                 d1 = grid_density[x1 / 4u + row];
             }
-            // Code c holds (c − 1) steps; every voxel read here was filled (requested).
-            let c0 = max(f32((d0 >> (8u * (x0 % 4u))) & 0xffu), 1.0) - 1.0;
-            let c1 = max(f32((d1 >> (8u * (x1 % 4u))) & 0xffu), 1.0) - 1.0;
-            density += a * c0 + b * c1;
+            // Code c holds (c − 1) steps; 0: not filled (never requested).
+            let k0 = (d0 >> (8u * (x0 % 4u))) & 0xffu;
+            let k1 = (d1 >> (8u * (x1 % 4u))) & 0xffu;
+            unfilled = unfilled || k0 == 0u || k1 == 0u;
+            density += a * (max(f32(k0), 1.0) - 1.0) + b * (max(f32(k1), 1.0) - 1.0);
         }
     }
-    return GridVisibility(vis, false, density * frame.grid_media_unit);
+    return GridVisibility(vis, unfilled, density * frame.grid_media_unit);
 }
 
 struct GridVisibility {
@@ -102,7 +108,8 @@ fn grid_visibility(p: vec3f) -> GridVisibility {
     let base = vec3i(floor(g));
     let f = g - floor(g);
     if (frame.flags & FLAG_SPARSE) == 0u {
-        return dense_trilinear(base, f, false);
+        // Without a request pass the density codes tell what the grid has filled.
+        return dense_trilinear(base, f, (frame.flags & FLAG_FROXEL_REQUESTS) != 0u);
     }
     for (var k = 0u; k < 8u; k++) {
         let o = vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
@@ -141,6 +148,9 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
         let d = gv.density;
         let grid_part = MediumSample(gm.scattering * d, medium_extinction(gm) * d, gm.emission * d, gm.g);
         m = combine_media(grid_part, sample_media_where(p, 0u));
+        if gv.missing {
+            m = media_at(p); // a voxel not filled yet: the media themselves
+        }
     } else {
         m = media_at(p);
     }
@@ -198,6 +208,13 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 }
                 other = gv.vis;
                 trace = gv.missing;
+                // FLAG_FROXEL_REQUESTS: an unfilled voxel is requested for the next
+                // frame (the bit of the lookup's lowest voxel, as grid_requests.wgsl
+                // sets it) and this froxel traces its own rays.
+                if trace && (frame.flags & FLAG_FROXEL_REQUESTS) != 0u {
+                    let bit = lookup_request_bit(vec3i(floor(grid_coord(p))), true);
+                    atomicOr(&requests[bit.x], bit.y);
+                }
                 // Where the voxels around p disagree, a shadow edge runs between them:
                 // the map resolves it (FLAG_MAP_EDGES).
                 if (frame.flags & FLAG_MAP_EDGES) != 0u {

@@ -29,8 +29,7 @@ var<private> phase: u32;
 fn request(c: vec3i) {
     let last = vec3i(frame.grid_dims) - 1;
     if phase == PHASE_DENSE {
-        let lowest = select(0, -1, (frame.flags & FLAG_TRILINEAR) != 0u);
-        let bit = request_bit(vec3u(clamp(c, vec3i(lowest), last) + 1));
+        let bit = lookup_request_bit(c, (frame.flags & FLAG_TRILINEAR) != 0u);
         atomicOr(&requests[bit.x], bit.y);
         return;
     }

@@ -5,7 +5,9 @@
 // parity on, only voxels whose z parity matches the frame's parity are updated. With
 // FLAG_CACHE, `valid` keeps which light bits of each voxel are current (same layout as
 // the grid); a needed voxel traces only its stale lights, and a light that changed
-// (frame.dirty_lights) makes its bit stale in every voxel.
+// (frame.dirty_lights) makes its bit stale in every voxel. With FLAG_FROXEL_REQUESTS the
+// requests are last frame's froxels' (what they found unfilled), and a filled voxel
+// whose bits went stale is needed too: every filled voxel stays current.
 
 @group(1) @binding(0) var<storage, read_write> grid: array<u32>;
 @group(1) @binding(1) var<storage, read_write> touched: array<atomic<u32>>;
@@ -172,6 +174,12 @@ fn main(
             var seen = false;
             if (frame.flags & FLAG_DEMAND) != 0u {
                 seen = ((requested >> i) & 1u) != 0u;
+                // FLAG_FROXEL_REQUESTS: froxels read a filled voxel without asking, so
+                // one whose light bits a mover made stale is traced again unasked.
+                if !seen && (frame.flags & FLAG_FROXEL_REQUESTS) != 0u {
+                    let filled = ((old_codes >> (8u * i)) & 0xffu) != 0u;
+                    seen = filled && ((valid_bits >> (8u * i)) & all_lights) != all_lights;
+                }
             } else {
                 let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
                 for (var vi = 0u; vi < frame.view_count; vi++) {

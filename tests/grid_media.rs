@@ -133,3 +133,114 @@ fn moving_media_refill_every_needed_voxel() {
         assert!(e.flip_mean <= MAX_FLIP, "FLIP {}", e.flip_mean);
     }
 }
+
+/// `froxel_requests` on or off over colonnade's defaults (`grid_media` on).
+fn requesting(scene: &Arc<Scene>, froxel_requests: bool, demand_cache: bool) -> Renderer {
+    let settings = Settings {
+        froxel_requests,
+        demand: true,
+        cache: demand_cache,
+        ..Settings::for_scene(scene)
+    };
+    Renderer::new(gpu(), scene.clone(), settings).unwrap()
+}
+
+#[test]
+fn froxels_request_what_the_grid_lacks_and_give_the_request_pass_image() {
+    // Two viewers walking the colonnade's path (its louvre turning): from the second
+    // frame the froxels request the voxels they find unfilled, instead of a request
+    // pass over every froxel, and trace their own rays for them meanwhile.
+    let scene = colonnade();
+    let (w, h) = SIZE;
+    let mut froxels = requesting(&scene, true, true);
+    let mut pass = requesting(&scene, false, true);
+    let mut own_rays = 0;
+    for f in 0..5 {
+        let t = 1.0 + f as f32 / 30.0;
+        let cams = scene.camera.viewers(2, t);
+        let a = froxels.render(&cams, w, h, t).unwrap();
+        let b = pass.render(&cams, w, h, t).unwrap();
+        println!(
+            "frame {f}: voxels needed {} (request pass {}), froxels' own rays {} (request pass {}), grid rays {} ({})",
+            a.stats.voxels_needed,
+            b.stats.voxels_needed,
+            a.stats.rays.froxel_lighting,
+            b.stats.rays.froxel_lighting,
+            a.stats.rays.shared_grid,
+            b.stats.rays.shared_grid,
+        );
+        // With the request pass every voxel a froxel reads was filled: no froxel traces.
+        assert_eq!(b.stats.rays.froxel_lighting, 0);
+        if f == 0 {
+            // The first frame has nothing to read yet: the request pass runs.
+            assert_eq!(a.stats.voxels_needed, b.stats.voxels_needed);
+            assert_eq!(a.stats.rays.froxel_lighting, 0);
+        } else {
+            // The grid pass sees only what is new (and what the louvre made stale).
+            assert!(
+                a.stats.voxels_needed * 5 <= b.stats.voxels_needed,
+                "{} of {} voxels needed",
+                a.stats.voxels_needed,
+                b.stats.voxels_needed
+            );
+            own_rays += a.stats.rays.froxel_lighting;
+        }
+        for (i, (ra, rb)) in a.images.iter().zip(&b.images).enumerate() {
+            let e = compare(ra, rb, w, h).unwrap();
+            println!(
+                "frame {f} viewer {i}: FLIP vs the request pass {:.5}",
+                e.flip_mean
+            );
+            assert!(e.flip_mean <= 0.002, "viewer {i}: FLIP {}", e.flip_mean);
+        }
+    }
+    // The cameras moved a frame of a 30 fps stream: some froxels met unfilled voxels.
+    assert!(
+        own_rays > 0,
+        "moving cameras read voxels no frame filled before"
+    );
+}
+
+#[test]
+fn froxel_requests_keep_the_voxels_a_mover_made_stale_current() {
+    // The same cameras at two times: every voxel the second frame reads was filled by
+    // the first, and the louvre's turn made some of their sun bits stale. The grid pass
+    // traces those again unasked, so the bits and the picture equal a fresh grid's.
+    let scene = colonnade();
+    assert!(!scene.movers.is_empty(), "colonnade has a turning louvre");
+    let (w, h) = SIZE;
+    let (t0, t1) = (1.0, 1.0 + 1.0 / 30.0);
+    let cams = scene.camera.viewers(2, t0);
+    let mut froxels = requesting(&scene, true, true);
+    froxels.render(&cams, w, h, t0).unwrap();
+    let warm = froxels.render(&cams, w, h, t1).unwrap();
+    let mut fresh = requesting(&scene, false, false);
+    let cold = fresh.render(&cams, w, h, t1).unwrap();
+    println!(
+        "t {t0} → {t1}: traced {} voxels again ({} grid rays), froxels' own rays {}; fresh traced {}",
+        warm.stats.voxels_needed,
+        warm.stats.rays.shared_grid,
+        warm.stats.rays.froxel_lighting,
+        cold.stats.voxels_needed
+    );
+    assert_eq!(
+        warm.stats.rays.froxel_lighting, 0,
+        "every voxel read was filled"
+    );
+    assert!(warm.stats.rays.shared_grid > 0, "the louvre turned");
+    let (words, _) = froxels.read_shared_grid().unwrap().unwrap();
+    let (fresh_words, touched) = fresh.read_shared_grid().unwrap().unwrap();
+    let mut checked = 0;
+    for (i, word) in fresh_words.iter().enumerate() {
+        let nibble = (touched[i / 8] >> (4 * (i % 8))) & 0xf;
+        for v in (0..4).filter(|v| nibble & (1 << v) != 0) {
+            let (a, b) = ((words[i] >> (8 * v)) as u8, (word >> (8 * v)) as u8);
+            assert_eq!(a, b, "voxel {}: {a:08b}, fresh {b:08b}", 4 * i + v);
+            checked += 1;
+        }
+    }
+    assert!(checked > 1000, "{checked} voxels compared");
+    for (x, y) in warm.images.iter().zip(&cold.images) {
+        assert_eq!(x, y, "the froxels' frame and a fresh grid's differ");
+    }
+}

@@ -87,11 +87,16 @@ impl FroxelHistory {
 pub(crate) struct FroxelLighting {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    /// Binds in place of the grid's requests where there is no grid.
+    no_requests: wgpu::Buffer,
 }
 
 impl FroxelLighting {
-    pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let own = [Read, Read, ReadWrite, Read, Read, Read, Read]
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene_layout: &wgpu::BindGroupLayout,
+    ) -> anyhow::Result<Self> {
+        let own = [Read, Read, ReadWrite, Read, Read, Read, Read, ReadWrite]
             .iter()
             .enumerate()
             .map(|(i, a)| storage_entry(i as u32, *a))
@@ -106,10 +111,15 @@ impl FroxelLighting {
                 include_str!("../../shaders/froxel_lighting.wgsl")
             ),
         );
-        FroxelLighting {
+        Ok(FroxelLighting {
             pipeline: ctx.compute_pipeline("froxel_lighting", &module, &[scene_layout, &layout]),
             layout,
-        }
+            no_requests: ctx.storage(
+                "froxel lighting: no grid requests",
+                16,
+                wgpu::BufferUsages::empty(),
+            )?,
+        })
     }
 
     /// `grid` is `None` in `reference` mode, where every froxel traces its own rays, and
@@ -128,6 +138,8 @@ impl FroxelLighting {
         let grid_buffer = grid.map_or(&volumes.frustum, |g| &g.grid);
         let bricks = grid.map_or(&volumes.frustum, |g| &g.brick_table);
         let density = grid.map_or(&volumes.frustum, |g| &g.density);
+        // FLAG_FROXEL_REQUESTS: a froxel requests the unfilled voxels it read.
+        let requests = grid.map_or(&self.no_requests, |g| &g.requests);
         let own = crate::gpu::buffer_entries(&[
             grid_buffer,
             &volumes.frustum,
@@ -136,6 +148,7 @@ impl FroxelLighting {
             bricks,
             &volumes.column_limit,
             density,
+            requests,
         ]);
         let bg = maps.stage_bind_group(ctx, "froxel lighting", &self.layout, own);
         dispatch(

@@ -26,6 +26,9 @@ pub(crate) const FLAG_MAP_EDGES: u32 = 32768;
 pub(crate) const FLAG_GRID_MEDIA: u32 = 65536;
 /// With `FLAG_GRID_MEDIA`: the grid's media move, every needed voxel is refilled.
 pub(crate) const FLAG_GRID_MEDIA_MOVES: u32 = 131072;
+/// `froxel_requests` this frame: no request pass; froxels request the voxels they find
+/// unfilled for the next frame's grid pass, and trace their own rays meanwhile.
+pub(crate) const FLAG_FROXEL_REQUESTS: u32 = 262144;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 13;

@@ -140,7 +140,7 @@ impl Renderer {
                 gbuffer: gbuffer::GBuffer::new(&ctx),
                 cull: froxel_cull::FroxelCull::new(&ctx, layout),
                 frustum: shadow_frustum::ShadowFrustum::new(&ctx, layout),
-                lighting: froxel_lighting::FroxelLighting::new(&ctx, layout),
+                lighting: froxel_lighting::FroxelLighting::new(&ctx, layout)?,
                 integration: volume_integration::VolumeIntegration::new(&ctx, layout),
                 smoke: smoke_view::SmokeView::new(&ctx, &world.gpu),
                 composite: composite::Composite::new(&ctx, layout),
@@ -347,8 +347,9 @@ impl Renderer {
         if let Some(grid) = grid {
             let world_bg = &world.gpu.bind_group;
             let cull = cull.then_some(&stages.cull);
+            let from_froxels = frame.flags & FLAG_FROXEL_REQUESTS != 0;
             f.world(Stage::GridRequests, |e, sets| {
-                grid.add_requests(&ctx, e, world_bg, sets, cull, ts)
+                grid.add_requests(&ctx, e, world_bg, sets, cull, from_froxels, ts)
             });
             f.world(Stage::SharedGrid, |e, _| {
                 grid.add_pass(&ctx, e, world_bg, ts)

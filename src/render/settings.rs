@@ -212,6 +212,20 @@ settings! {
     #[serde(default)]
     grid_media: bool = true;
 
+    /// With the density in the grid (`grid_media`) and a dense, cached, demand-driven
+    /// grid: a froxel that reads a voxel the grid has not filled traces its own rays and
+    /// requests the voxel for the next frame's grid pass, instead of a request pass
+    /// walking every froxel before the grid (off: that pass, every frame).
+    ///
+    /// Beyond the paper: where the lights stand still the cached grid holds what the
+    /// froxels read after a frame or two, and the request pass (10.5 ms of colonnade's
+    /// 138 ms at 16 viewers) only finds what is already there; a filled voxel whose
+    /// bits a mover made stale is traced again unasked. Used from the second frame until
+    /// the first frame in which a light changes; from then on the request pass runs
+    /// (docs/decisions.md, "Grid requests from the froxels").
+    #[serde(default)]
+    froxel_requests: bool = true;
+
     /// `shared`'s froxels read the shared shadow maps (2×2 PCF, as `maps` does) for every
     /// light that has one: no grid and no shadow frustum when every light has one, the
     /// hidden froxels still culled.
@@ -766,6 +780,14 @@ impl Settings {
             && self.trilinear
             && self.brick_pool == 0
             && self.media_voxel_m <= 0.0
+    }
+
+    /// Whether froxels may request the grid voxels they find unfilled (`froxel_requests`):
+    /// the density in the grid marks what was filled, the grid is dense, demand-driven
+    /// and cached, and every needed voxel is traced in the frame it is requested (no
+    /// parity).
+    pub(crate) fn requests_from_froxels(&self) -> bool {
+        self.froxel_requests && self.density_in_grid() && self.demand && self.cache && !self.parity
     }
 
     /// Whether the shared shadow maps and media transmittance volumes are built (`shared`

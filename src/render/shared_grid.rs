@@ -316,6 +316,9 @@ impl SharedShadowGrid {
     /// returns false for the frustum-gated update, which has none): last frame's
     /// requests cleared, each set's hidden froxels culled (`cull`), each set's voxels (or
     /// bricks) marked, the sparse pool allocated, then the sparse bricks' voxels marked.
+    /// With `from_froxels` (`FLAG_FROXEL_REQUESTS`) only the culling: the requests are
+    /// those last frame's froxels made, cleared after the grid pass ([`Self::add_pass`]).
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn add_requests(
         &self,
         ctx: &GpuContext,
@@ -323,12 +326,15 @@ impl SharedShadowGrid {
         world: &wgpu::BindGroup,
         sets: &[&ViewerSet],
         cull: Option<&FroxelCull>,
+        from_froxels: bool,
         ts: &Timestamps,
     ) -> bool {
         if !self.policy.requests() {
             return false;
         }
-        enc.clear_buffer(&self.requests, 0, None);
+        if !from_froxels {
+            enc.clear_buffer(&self.requests, 0, None);
+        }
         if self.policy.sparse() {
             enc.clear_buffer(&self.brick_table, 0, None);
         }
@@ -336,7 +342,12 @@ impl SharedShadowGrid {
             if let Some(cull) = cull {
                 cull.add_passes(ctx, enc, set, ts);
             }
-            self.add_request_pass(ctx, enc, set, RequestPhase::Mark, ts);
+            if !from_froxels {
+                self.add_request_pass(ctx, enc, set, RequestPhase::Mark, ts);
+            }
+        }
+        if from_froxels {
+            return cull.is_some();
         }
         self.add_allocation(ctx, enc, world, ts);
         for set in sets {
@@ -415,6 +426,8 @@ impl SharedShadowGrid {
     }
 
     /// Records the grid update: every needed voxel traces one ray per (stale) light.
+    /// The requests it read are cleared after it: with `FLAG_FROXEL_REQUESTS` they were
+    /// last frame's froxels', and this frame's froxels make the next frame's.
     pub(crate) fn add_pass(
         &self,
         ctx: &GpuContext,
@@ -448,6 +461,10 @@ impl SharedShadowGrid {
             &[world, &bg],
             self.workgroups(),
         );
+        // Read: cleared for this frame's froxels or the next request pass.
+        if self.policy.requests() {
+            enc.clear_buffer(&self.requests, 0, None);
+        }
         true
     }
 

@@ -76,6 +76,11 @@ pub struct World {
     lights_uploaded: Option<Vec<LightGpu>>,
     /// Scene time of the movers as last uploaded.
     movers_time: Option<f32>,
+    /// `froxel_requests`: whether the grid pass has run (then froxels can request what
+    /// it has not filled), and whether a light changed since (then a filled voxel's
+    /// light bits may be stale, and the request pass runs from then on).
+    grid_filled: bool,
+    grid_changed: bool,
     pub(crate) frame_index: u32,
     pub(crate) triangles: usize,
 }
@@ -161,6 +166,8 @@ impl World {
             grid,
             lights_uploaded: None,
             movers_time: None,
+            grid_filled: false,
+            grid_changed: false,
             frame_index: 0,
             ctx,
             scene,
@@ -268,6 +275,23 @@ impl World {
                     flags |= FLAG_GRID_MEDIA_MOVES;
                 }
             }
+        }
+        // `froxel_requests`: a filled voxel (density code ≠ 0) has current light bits
+        // while no light changed since the grid first ran (every voxel is traced in the
+        // frame it is first requested, and with the flag the grid pass traces a filled
+        // voxel again when a mover makes its bits stale). From the first frame in which
+        // a light changes on, every filled voxel may be stale: the request pass.
+        if let Some(g) = self.grid.as_ref().filter(|_| !scene.media.is_empty()) {
+            self.grid_changed |= self.grid_filled && dirty_lights != 0;
+            if s.requests_from_froxels()
+                && g.update().cached()
+                && g.media.as_ref().is_some_and(|m| !m.animated)
+                && self.grid_filled
+                && !self.grid_changed
+            {
+                flags |= FLAG_FROXEL_REQUESTS;
+            }
+            self.grid_filled = true;
         }
         if self.transmittance.in_use() {
             flags |= FLAG_MEDIA_T;
