@@ -338,6 +338,45 @@ fn lookup_request_bit(c: vec3i, trilinear: bool) -> vec2u {
     return request_bit(vec3u(clamp(c, vec3i(lowest), vec3i(frame.grid_dims) - 1) + 1));
 }
 
+// The centre of grid voxel q, where the grid pass traces and fills it.
+fn voxel_centre(q: vec3u) -> vec3f {
+    return frame.grid_min + (vec3f(q) + 0.5) * frame.voxel_size;
+}
+
+// Voxel q's light bits as the grid pass traces them: the lights of `which` (a bitmask)
+// with radiance at its centre (a spot's cone), one ray each, added to `rays`.
+fn trace_voxel(q: vec3u, which: u32, rays: ptr<function, u32>) -> u32 {
+    let centre = voxel_centre(q);
+    var mask = 0u;
+    for (var li = 0u; li < frame.light_count; li++) {
+        if ((which >> li) & 1u) == 0u {
+            continue;
+        }
+        let l = lights[li];
+        if all(light_radiance(l, centre) == vec3f(0.0)) {
+            continue; // outside a spot cone: no ray needed
+        }
+        *rays += 1u;
+        if light_visible(l, centre) {
+            mask |= 1u << li;
+        }
+    }
+    return mask;
+}
+
+// The summed density of the media the grid carries (in_layer with FLAG_GRID_MEDIA) at
+// `p`, as its 8-bit code: 1 + the density in steps of frame.grid_media_unit (0: not
+// filled yet).
+fn density_code(p: vec3f) -> u32 {
+    var d = 0.0;
+    for (var i = 0u; i < frame.medium_count; i++) {
+        if media[i].in_layer == 1u {
+            d += medium_density(media[i], p);
+        }
+    }
+    return 1u + u32(clamp(round(d / frame.grid_media_unit), 0.0, 254.0));
+}
+
 const PI: f32 = 3.14159265358979;
 // Froxels store S / max(σt, SIGMA_EPS); below it the σt → 0 limit S·d is used.
 const SIGMA_EPS: f32 = 1e-4;

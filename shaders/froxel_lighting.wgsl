@@ -39,8 +39,8 @@ fn grid_mask(c: vec3i) -> u32 {
 // so the two x-neighbours of each (y, z) corner pair come from one word three times in
 // four (5 reads instead of 8 on average). Same sums, in the same order, as the
 // voxel-by-voxel read. With `media`, the grid's media density too, from the same words
-// of `grid_density`, and whether one of the 8 voxels is not filled yet (code 0: not
-// requested before; FLAG_FROXEL_REQUESTS reads it where there is no request pass).
+// of `grid_density`, and whether one of the 8 voxels is not filled yet (code 0: never
+// requested; only without a request pass, FLAG_FROXEL_REQUESTS).
 fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
     var vis: array<f32, 8>;
     var density = 0.0;
@@ -75,7 +75,7 @@ fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
             if x1 / 4u != x0 / 4u {
                 d1 = grid_density[x1 / 4u + row];
             }
-            // Code c holds (c − 1) steps; 0: not filled (never requested).
+            // Code c holds (c − 1) steps; 0: not filled.
             let k0 = (d0 >> (8u * (x0 % 4u))) & 0xffu;
             let k1 = (d1 >> (8u * (x1 % 4u))) & 0xffu;
             unfilled = unfilled || k0 == 0u || k1 == 0u;
@@ -85,16 +85,78 @@ fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
     return GridVisibility(vis, unfilled, density * frame.grid_media_unit);
 }
 
+// dense_trilinear where some of the 8 voxels are not filled yet: those are made here as
+// the grid pass makes them (trace_voxel, density_code; their rays added to `rays`), so
+// the froxel gets the value it will read once the grid has them. The same sums in the
+// same order; one loop over the voxels first, so the tracing code is compiled once.
+fn made_trilinear(base: vec3i, f: vec3f, rays: ptr<function, u32>) -> GridVisibility {
+    var masks: array<u32, 8>;
+    var codes: array<u32, 8>;
+    let top = vec3i(frame.grid_dims) - 1;
+    for (var k = 0u; k < 8u; k++) {
+        let o = vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32(k >> 2u));
+        let q = vec3u(clamp(base + o, vec3i(0), top));
+        let word = q.x / 4u + frame.grid_words_x * (q.y + frame.grid_dims.y * q.z);
+        var m = (grid[word] >> (8u * (q.x % 4u))) & 0xffu;
+        var c = (grid_density[word] >> (8u * (q.x % 4u))) & 0xffu;
+        if c == 0u {
+            m = trace_voxel(q, 0xffu, rays);
+            c = density_code(voxel_centre(q));
+        }
+        masks[k] = m;
+        codes[k] = c;
+    }
+    var vis: array<f32, 8>;
+    var density = 0.0;
+    for (var yz = 0u; yz < 4u; yz++) {
+        let oy = yz & 1u;
+        let oz = yz >> 1u;
+        let wy = select(1.0 - f.y, f.y, oy == 1u);
+        let wz = select(1.0 - f.z, f.z, oz == 1u);
+        let a = (1.0 - f.x) * wy * wz;
+        let b = f.x * wy * wz;
+        let m0 = masks[2u * yz];
+        let m1 = masks[2u * yz + 1u];
+        for (var li = 0u; li < 8u; li++) {
+            vis[li] += a * f32((m0 >> li) & 1u);
+            vis[li] += b * f32((m1 >> li) & 1u);
+        }
+        density += a * (max(f32(codes[2u * yz]), 1.0) - 1.0) + b * (max(f32(codes[2u * yz + 1u]), 1.0) - 1.0);
+    }
+    return GridVisibility(vis, false, density * frame.grid_media_unit);
+}
+
+// The dense grid's trilinear lookup at `p` (with `media`, its density too). Without a
+// request pass (FLAG_FROXEL_REQUESTS) a lookup that meets a voxel not filled yet
+// requests it for the next frame's grid pass — the bit grid_requests.wgsl would set —
+// and makes the voxels it lacks itself (made_trilinear): the same value, only slower.
+fn dense_lookup(p: vec3f, media: bool, rays: ptr<function, u32>) -> GridVisibility {
+    let g = grid_coord(p);
+    let base = vec3i(floor(g));
+    let f = g - floor(g);
+    let requests_here = (frame.flags & FLAG_FROXEL_REQUESTS) != 0u;
+    let gv = dense_trilinear(base, f, media || requests_here);
+    if !gv.missing {
+        return gv;
+    }
+    if requests_here {
+        let bit = lookup_request_bit(base, true);
+        atomicOr(&requests[bit.x], bit.y);
+    }
+    return made_trilinear(base, f, rays);
+}
+
 struct GridVisibility {
     vis: array<f32, 8>,
-    // Some voxel read was not in the (sparse) grid: trace rays instead.
+    // Some voxel read was not in the (sparse) grid: trace rays instead (dense grids make
+    // such voxels in place, dense_lookup).
     missing: bool,
     // The grid's media density at the point (dense_trilinear with `media`; else 0).
     density: f32,
 }
 
 // Visibility of each light at p from the shared grid.
-fn grid_visibility(p: vec3f) -> GridVisibility {
+fn grid_visibility(p: vec3f, rays: ptr<function, u32>) -> GridVisibility {
     var vis: array<f32, 8>;
     let g = grid_coord(p);
     if (frame.flags & FLAG_TRILINEAR) == 0u {
@@ -108,8 +170,7 @@ fn grid_visibility(p: vec3f) -> GridVisibility {
     let base = vec3i(floor(g));
     let f = g - floor(g);
     if (frame.flags & FLAG_SPARSE) == 0u {
-        // Without a request pass the density codes tell what the grid has filled.
-        return dense_trilinear(base, f, (frame.flags & FLAG_FROXEL_REQUESTS) != 0u);
+        return dense_lookup(p, false, rays);
     }
     for (var k = 0u; k < 8u; k++) {
         let o = vec3i(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
@@ -142,15 +203,11 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
     var m: MediumSample;
     var gv: GridVisibility;
     if from_grid {
-        let g = grid_coord(p);
-        gv = dense_trilinear(vec3i(floor(g)), g - floor(g), true);
+        gv = dense_lookup(p, true, rays);
         let gm = media[frame.grid_media_first];
         let d = gv.density;
         let grid_part = MediumSample(gm.scattering * d, medium_extinction(gm) * d, gm.emission * d, gm.g);
         m = combine_media(grid_part, sample_media_where(p, 0u));
-        if gv.missing {
-            m = media_at(p); // a voxel not filled yet: the media themselves
-        }
     } else {
         m = media_at(p);
     }
@@ -204,17 +261,10 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 }
             } else {
                 if !from_grid {
-                    gv = grid_visibility(p);
+                    gv = grid_visibility(p, rays);
                 }
                 other = gv.vis;
                 trace = gv.missing;
-                // FLAG_FROXEL_REQUESTS: an unfilled voxel is requested for the next
-                // frame (the bit of the lookup's lowest voxel, as grid_requests.wgsl
-                // sets it) and this froxel traces its own rays.
-                if trace && (frame.flags & FLAG_FROXEL_REQUESTS) != 0u {
-                    let bit = lookup_request_bit(vec3i(floor(grid_coord(p))), true);
-                    atomicOr(&requests[bit.x], bit.y);
-                }
                 // Where the voxels around p disagree, a shadow edge runs between them:
                 // the map resolves it (FLAG_MAP_EDGES).
                 if (frame.flags & FLAG_MAP_EDGES) != 0u {

@@ -47,35 +47,6 @@ fn requested_voxels(x0: u32, y: u32, z: u32) -> u32 {
     return (m | (m >> 1u)) & 0xfu;
 }
 
-// Summed density of the media the grid carries (in_layer with FLAG_GRID_MEDIA) at `p`,
-// as its 8-bit code.
-fn density_code(p: vec3f) -> u32 {
-    var d = 0.0;
-    for (var i = 0u; i < frame.medium_count; i++) {
-        if media[i].in_layer == 1u {
-            d += medium_density(media[i], p);
-        }
-    }
-    return 1u + u32(clamp(round(d / frame.grid_media_unit), 0.0, 254.0));
-}
-
-// Traces every light (with radiance) from the centre of voxel q; the light bitmask.
-fn trace_voxel(q: vec3u, rays: ptr<function, u32>) -> u32 {
-    let centre = frame.grid_min + (vec3f(q) + 0.5) * frame.voxel_size;
-    var mask = 0u;
-    for (var li = 0u; li < frame.light_count; li++) {
-        let l = lights[li];
-        if all(light_radiance(l, centre) == vec3f(0.0)) {
-            continue;
-        }
-        *rays += 1u;
-        if light_visible(l, centre) {
-            mask |= 1u << li;
-        }
-    }
-    return mask;
-}
-
 // Whether the shadow ray from `centre` to light `li` crosses the bounds the movers swept
 // since the last frame (then a cached bit of that light may be stale).
 fn crosses_moved(centre: vec3f, li: u32) -> bool {
@@ -194,8 +165,7 @@ fn main(
             }
             let shift = 8u * i;
             if media && (refill || ((old_codes >> shift) & 0xffu) == 0u) {
-                let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
-                codes |= density_code(centre) << shift;
+                codes |= density_code(voxel_centre(vec3u(x, gid.y, gid.z))) << shift;
                 coded |= 0xffu << shift;
             }
             if !may_trace {
@@ -227,22 +197,7 @@ fn main(
         let stale = (e >> 8u) & 0xffu;
         // Local word w of this workgroup: (w % 4, w / 4 % 4, w / 16) in words.
         let q = vec3u((wg.x * 4u + w % 4u) * 4u + i, wg.y * 4u + (w / 4u) % 4u, wg.z * 4u + w / 16u);
-        let centre = frame.grid_min + (vec3f(q) + 0.5) * frame.voxel_size;
-        var mask = 0u;
-        for (var li = 0u; li < frame.light_count; li++) {
-            if ((stale >> li) & 1u) == 0u {
-                continue;
-            }
-            let l = lights[li];
-            if all(light_radiance(l, centre) == vec3f(0.0)) {
-                continue; // outside a spot cone: no ray needed
-            }
-            rays += 1u;
-            if light_visible(l, centre) {
-                mask |= 1u << li;
-            }
-        }
-        atomicOr(&traced_bits[w], mask << (8u * i));
+        atomicOr(&traced_bits[w], trace_voxel(q, stale, &rays) << (8u * i));
     }
     workgroupBarrier();
     if in_grid {
@@ -283,7 +238,7 @@ fn update_sparse(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgro
             if any(q >= frame.grid_dims) || ((requests[bit / 32u] >> (bit % 32u)) & 1u) == 0u {
                 continue;
             }
-            word |= trace_voxel(q, &rays) << (8u * i);
+            word |= trace_voxel(q, 0xffu, &rays) << (8u * i);
             traced += 1u;
         }
         grid[id] = word;

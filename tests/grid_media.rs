@@ -147,21 +147,22 @@ fn requesting(scene: &Arc<Scene>, froxel_requests: bool, demand_cache: bool) -> 
 
 #[test]
 fn froxels_request_what_the_grid_lacks_and_give_the_request_pass_image() {
-    // Two viewers walking the colonnade's path (its louvre turning): from the second
-    // frame the froxels request the voxels they find unfilled, instead of a request
-    // pass over every froxel, and trace their own rays for them meanwhile.
+    // Two viewers walking the colonnade's path at 30 fps (its louvre turning): from the
+    // second frame the froxels request the voxels they find unfilled, instead of a
+    // request pass over every froxel, and make those voxels themselves meanwhile, as
+    // the grid pass would: the picture is the request pass's, bit for bit.
     let scene = colonnade();
     let (w, h) = SIZE;
     let mut froxels = requesting(&scene, true, true);
     let mut pass = requesting(&scene, false, true);
-    let mut own_rays = 0;
+    let mut made = 0;
     for f in 0..5 {
         let t = 1.0 + f as f32 / 30.0;
         let cams = scene.camera.viewers(2, t);
         let a = froxels.render(&cams, w, h, t).unwrap();
         let b = pass.render(&cams, w, h, t).unwrap();
         println!(
-            "frame {f}: voxels needed {} (request pass {}), froxels' own rays {} (request pass {}), grid rays {} ({})",
+            "frame {f}: voxels needed {} (request pass {}), rays of voxels made in froxels {} (request pass {}), grid rays {} ({})",
             a.stats.voxels_needed,
             b.stats.voxels_needed,
             a.stats.rays.froxel_lighting,
@@ -176,27 +177,21 @@ fn froxels_request_what_the_grid_lacks_and_give_the_request_pass_image() {
             assert_eq!(a.stats.voxels_needed, b.stats.voxels_needed);
             assert_eq!(a.stats.rays.froxel_lighting, 0);
         } else {
-            // The grid pass sees only what is new (and what the louvre made stale).
+            // The grid pass sees what last frame's froxels lacked and what the louvre
+            // made stale, a tenth of what the request pass marks.
             assert!(
-                a.stats.voxels_needed * 5 <= b.stats.voxels_needed,
+                a.stats.voxels_needed * 10 <= b.stats.voxels_needed,
                 "{} of {} voxels needed",
                 a.stats.voxels_needed,
                 b.stats.voxels_needed
             );
-            own_rays += a.stats.rays.froxel_lighting;
+            made += a.stats.rays.froxel_lighting;
         }
-        for (i, (ra, rb)) in a.images.iter().zip(&b.images).enumerate() {
-            let e = compare(ra, rb, w, h).unwrap();
-            println!(
-                "frame {f} viewer {i}: FLIP vs the request pass {:.5}",
-                e.flip_mean
-            );
-            assert!(e.flip_mean <= 0.002, "viewer {i}: FLIP {}", e.flip_mean);
-        }
+        assert!(a.images == b.images, "frame {f}: the pictures differ");
     }
-    // The cameras moved a frame of a 30 fps stream: some froxels met unfilled voxels.
+    // The cameras moved: some froxels met voxels no frame had filled.
     assert!(
-        own_rays > 0,
+        made > 0,
         "moving cameras read voxels no frame filled before"
     );
 }
@@ -217,7 +212,7 @@ fn froxel_requests_keep_the_voxels_a_mover_made_stale_current() {
     let mut fresh = requesting(&scene, false, false);
     let cold = fresh.render(&cams, w, h, t1).unwrap();
     println!(
-        "t {t0} → {t1}: traced {} voxels again ({} grid rays), froxels' own rays {}; fresh traced {}",
+        "t {t0} → {t1}: traced {} voxels again ({} grid rays), rays of voxels made in froxels {}; fresh traced {}",
         warm.stats.voxels_needed,
         warm.stats.rays.shared_grid,
         warm.stats.rays.froxel_lighting,
