@@ -213,9 +213,10 @@ settings! {
     grid_media: bool = true;
 
     /// With the density in the grid (`grid_media`) and a dense, cached, demand-driven
-    /// grid: a froxel that reads a voxel the grid has not filled traces its own rays and
-    /// requests the voxel for the next frame's grid pass, instead of a request pass
-    /// walking every froxel before the grid (off: that pass, every frame).
+    /// grid: a froxel that reads a voxel the grid has not filled makes it itself as the
+    /// grid pass would (the same picture) and requests it for the next frame's grid
+    /// pass, instead of a request pass walking every froxel before the grid (off: that
+    /// pass, every frame).
     ///
     /// Beyond the paper: where the lights stand still the cached grid holds what the
     /// froxels read after a frame or two, and the request pass (10.5 ms of colonnade's

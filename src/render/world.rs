@@ -283,8 +283,8 @@ impl World {
         // a light changes on, every filled voxel may be stale: the request pass.
         if let Some(g) = self.grid.as_ref().filter(|_| !scene.media.is_empty()) {
             self.grid_changed |= self.grid_filled && dirty_lights != 0;
+            // (`requests_from_froxels` implies a cached grid with the density in it.)
             if s.requests_from_froxels()
-                && g.update().cached()
                 && g.media.as_ref().is_some_and(|m| !m.animated)
                 && self.grid_filled
                 && !self.grid_changed
