@@ -12,7 +12,9 @@
 //! first eye alone as a mono view (issue 16's "stereo session / one eye", paired frame
 //! by frame). Two warm-up frames each; FRAMES (default 12) measured frames each. With
 //! DT the heads move along the path, the n-th pair of frames at scene time n·DT seconds
-//! (default 0: every frame at t = 0); the fog stages' rays are reported too.
+//! (default 0: every frame at t = 0); the fog stages' rays, the froxels with media and
+//! the frames whose froxels requested the grid's voxels (`froxel_requests`) are
+//! reported too.
 //! Example: `cargo run --example ab_settings -- colonnade - stereo_head=on 20 2`.
 
 use anyhow::Context as _;
@@ -95,6 +97,11 @@ fn main() -> anyhow::Result<()> {
         for (name, n) in [
             ("rays: shared_grid", r.shared_grid),
             ("rays: froxel_lighting", r.froxel_lighting),
+            ("froxels with media", out.stats.froxels_with_media),
+            (
+                "frames without a request pass",
+                u64::from(out.stats.froxel_requests),
+            ),
         ] {
             ms[k].entry(name.into()).or_default().push(n as f64);
         }
@@ -104,6 +111,11 @@ fn main() -> anyhow::Result<()> {
     println!("|---|---|---|---|");
     for (stage, va) in &ms[0] {
         let Some(vb) = ms[1].get(stage) else { continue };
+        if stage.starts_with("frames") {
+            let (na, nb) = (va.iter().sum::<f64>(), vb.iter().sum::<f64>());
+            println!("| {stage} | {na} | {nb} | |");
+            continue;
+        }
         let ratios = va.iter().zip(vb).map(|(x, y)| y / x.max(1e-9)).collect();
         println!(
             "| {stage} | {:.2} | {:.2} | {:.3} |",

@@ -150,42 +150,65 @@ fn froxels_request_what_the_grid_lacks_and_give_the_request_pass_image() {
     // Two viewers walking the colonnade's path at 30 fps (its louvre turning): from the
     // second frame the froxels request the voxels they find unfilled, instead of a
     // request pass over every froxel, and make those voxels themselves meanwhile, as
-    // the grid pass would: the picture is the request pass's, bit for bit.
+    // the grid pass would: the picture is the request pass's, bit for bit. Where they
+    // made more than one ray per 64 froxels with media (costlier than the pass), the
+    // next frame has the request pass again.
     let scene = colonnade();
     let (w, h) = SIZE;
     let mut froxels = requesting(&scene, true, true);
     let mut pass = requesting(&scene, false, true);
     let mut made = 0;
+    let mut over_budget = None;
     for f in 0..5 {
         let t = 1.0 + f as f32 / 30.0;
         let cams = scene.camera.viewers(2, t);
         let a = froxels.render(&cams, w, h, t).unwrap();
         let b = pass.render(&cams, w, h, t).unwrap();
         println!(
-            "frame {f}: voxels needed {} (request pass {}), rays of voxels made in froxels {} (request pass {}), grid rays {} ({})",
+            "frame {f}: froxel requests {}, voxels needed {} (request pass {}), rays of voxels made in froxels {} (request pass {}), grid rays {} ({}), froxels with media {}",
+            a.stats.froxel_requests,
             a.stats.voxels_needed,
             b.stats.voxels_needed,
             a.stats.rays.froxel_lighting,
             b.stats.rays.froxel_lighting,
             a.stats.rays.shared_grid,
             b.stats.rays.shared_grid,
+            a.stats.froxels_with_media,
         );
         // With the request pass every voxel a froxel reads was filled: no froxel traces.
         assert_eq!(b.stats.rays.froxel_lighting, 0);
-        if f == 0 {
-            // The first frame has nothing to read yet: the request pass runs.
+        assert!(!b.stats.froxel_requests);
+        if !a.stats.froxel_requests {
             assert_eq!(a.stats.voxels_needed, b.stats.voxels_needed);
             assert_eq!(a.stats.rays.froxel_lighting, 0);
-        } else {
-            // The grid pass sees what last frame's froxels lacked and what the louvre
-            // made stale, a tenth of what the request pass marks.
+        }
+        match f {
+            // The first frame has nothing to read yet: the request pass runs.
+            0 => assert!(!a.stats.froxel_requests),
+            // The second does not: the grid pass sees what last frame's froxels lacked
+            // and what the louvre made stale, a tenth of what the request pass marks.
+            1 => {
+                assert!(a.stats.froxel_requests);
+                assert!(
+                    a.stats.voxels_needed * 10 <= b.stats.voxels_needed,
+                    "{} of {} voxels needed",
+                    a.stats.voxels_needed,
+                    b.stats.voxels_needed
+                );
+            }
+            _ => {}
+        }
+        if let Some(g) = over_budget.take() {
             assert!(
-                a.stats.voxels_needed * 10 <= b.stats.voxels_needed,
-                "{} of {} voxels needed",
-                a.stats.voxels_needed,
-                b.stats.voxels_needed
+                !a.stats.froxel_requests,
+                "frame {g} made more voxels in place than a request pass costs, frame {f} again"
             );
+        }
+        if a.stats.froxel_requests {
             made += a.stats.rays.froxel_lighting;
+            if a.stats.rays.froxel_lighting * 64 > a.stats.froxels_with_media {
+                over_budget = Some(f);
+            }
         }
         assert!(a.images == b.images, "frame {f}: the pictures differ");
     }
@@ -194,6 +217,22 @@ fn froxels_request_what_the_grid_lacks_and_give_the_request_pass_image() {
         made > 0,
         "moving cameras read voxels no frame filled before"
     );
+}
+
+#[test]
+fn still_cameras_leave_the_requests_to_the_froxels() {
+    // Viewers that stand still while the louvre turns: after the first frame no froxel
+    // meets an unfilled voxel, and the request pass never comes back.
+    let scene = colonnade();
+    let (w, h) = SIZE;
+    let cams = scene.camera.viewers(2, 1.0);
+    let mut froxels = requesting(&scene, true, true);
+    for f in 0..4 {
+        let t = 1.0 + f as f32 / 30.0;
+        let a = froxels.render(&cams, w, h, t).unwrap();
+        assert_eq!(a.stats.froxel_requests, f > 0, "frame {f}");
+        assert_eq!(a.stats.rays.froxel_lighting, 0, "frame {f}");
+    }
 }
 
 #[test]
@@ -217,6 +256,10 @@ fn froxel_requests_keep_the_voxels_a_mover_made_stale_current() {
         warm.stats.rays.shared_grid,
         warm.stats.rays.froxel_lighting,
         cold.stats.voxels_needed
+    );
+    assert!(
+        warm.stats.froxel_requests,
+        "no request pass in the second frame"
     );
     assert_eq!(
         warm.stats.rays.froxel_lighting, 0,

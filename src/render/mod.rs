@@ -474,6 +474,8 @@ impl Renderer {
                 .gbuffer
                 .raster_triangles(u64::from(bytes.counters[C_RASTER_TRIANGLES])),
         });
+        self.world.weigh_froxel_requests(&bytes.counters);
+        let world = &self.world;
         let froxels_written = world.has_media();
         for set in self.sets.values_mut() {
             set.finish(&world.settings, froxels_written);

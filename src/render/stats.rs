@@ -112,6 +112,10 @@ pub struct FrameStats {
     /// World media layer: nodes evaluated this frame (729 per brick filled).
     #[serde(default)]
     pub layer_nodes_filled: u64,
+    /// `froxel_requests`: whether this frame's froxels requested the grid voxels they
+    /// found unfilled (and made them in place) instead of a request pass.
+    #[serde(default)]
+    pub froxel_requests: bool,
     /// `grid_media`: grid voxels whose media density was evaluated this frame (once for
     /// every viewer, in the grid pass; 0 without it).
     #[serde(default)]
@@ -253,6 +257,7 @@ pub(super) fn build(i: StatsInput<'_>) -> FrameStats {
         layer_bricks_filled: c(C_LAYER_NODES) / super::media_layer::BRICK_NODES,
         layer_nodes_filled: c(C_LAYER_NODES),
         grid_media_voxels: c(C_GRID_MEDIA_VOXELS),
+        froxel_requests: w.froxel_requests_now,
         raster_triangles: i.raster_triangles.0,
         raster_triangles_in_clusters: i.raster_triangles.1,
         layer_bricks_in_use,

@@ -19,6 +19,12 @@ use crate::scene::{Bvh, Scene};
 use glam::Vec3;
 use std::sync::Arc;
 
+/// `froxel_requests`: froxels with media per ray made in place that the request pass
+/// costs as much as. Measured on lavapipe (colonnade, one viewer walking its path at
+/// 30 fps): the request pass over ~N froxels took as long as N / 64 rays made in place
+/// and traced again by the next grid pass (docs/decisions.md).
+const IN_PLACE_RAY_FROXELS: u64 = 64;
+
 /// How a froxel beyond the shadow frustum finds whether each light reaches it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Lookup {
@@ -81,6 +87,12 @@ pub struct World {
     /// light bits may be stale, and the request pass runs from then on).
     grid_filled: bool,
     grid_changed: bool,
+    /// `froxel_requests`: whether this frame's froxels request the voxels (no request
+    /// pass), whether this frame filled the grid first, and whether the next frame may
+    /// skip the request pass (`weigh_froxel_requests`).
+    pub(crate) froxel_requests_now: bool,
+    grid_first_fill: bool,
+    froxel_requests_pay: bool,
     pub(crate) frame_index: u32,
     pub(crate) triangles: usize,
 }
@@ -168,6 +180,9 @@ impl World {
             movers_time: None,
             grid_filled: false,
             grid_changed: false,
+            froxel_requests_now: false,
+            grid_first_fill: false,
+            froxel_requests_pay: true,
             frame_index: 0,
             ctx,
             scene,
@@ -194,6 +209,26 @@ impl World {
     }
 
     /// Whether the scene has media (else no froxel stage runs).
+    /// `froxel_requests`, after a frame: whether the next may leave the requests to the
+    /// froxels. They make the voxels the grid lacks in place (each voxel by every froxel
+    /// that reads it, and traced once more by the next grid pass), while the request
+    /// pass costs a pass over every froxel with media. The next frame's unfilled voxels
+    /// are guessed from this frame's: the rays the froxels made in place, or after a
+    /// request pass the grid pass's rays (an upper bound: it counts the voxels movers
+    /// made stale too, which are traced either way). The request pass runs while those
+    /// rays exceed one per `IN_PLACE_RAY_FROXELS` froxels with media, so a camera that
+    /// moves into unseen space gets the request pass and still ones do not. The frame
+    /// that first fills the grid is no guide (every voxel is new then).
+    pub(crate) fn weigh_froxel_requests(&mut self, counters: &[u32]) {
+        let rays = if self.froxel_requests_now {
+            counters[C_LIGHTING_RAYS]
+        } else {
+            counters[C_GRID_RAYS]
+        };
+        self.froxel_requests_pay = self.grid_first_fill
+            || u64::from(rays) * IN_PLACE_RAY_FROXELS <= u64::from(counters[C_FROXELS_WITH_MEDIA]);
+    }
+
     pub(crate) fn has_media(&self) -> bool {
         !self.scene.media.is_empty()
     }
@@ -280,17 +315,23 @@ impl World {
         // while no light changed since the grid first ran (every voxel is traced in the
         // frame it is first requested, and with the flag the grid pass traces a filled
         // voxel again when a mover makes its bits stale). From the first frame in which
-        // a light changes on, every filled voxel may be stale: the request pass.
+        // a light changes on, every filled voxel may be stale: the request pass. The
+        // request pass runs too while the froxels would make more voxels in place than
+        // it costs (`weigh_froxel_requests`: cameras that move into unseen space).
+        self.froxel_requests_now = false;
+        self.grid_first_fill = false;
         if let Some(g) = self.grid.as_ref().filter(|_| !scene.media.is_empty()) {
             self.grid_changed |= self.grid_filled && dirty_lights != 0;
             // (`requests_from_froxels` implies a cached grid with the density in it.)
-            if s.requests_from_froxels()
+            self.froxel_requests_now = s.requests_from_froxels()
                 && g.media.as_ref().is_some_and(|m| !m.animated)
                 && self.grid_filled
                 && !self.grid_changed
-            {
+                && self.froxel_requests_pay;
+            if self.froxel_requests_now {
                 flags |= FLAG_FROXEL_REQUESTS;
             }
+            self.grid_first_fill = !self.grid_filled;
             self.grid_filled = true;
         }
         if self.transmittance.in_use() {
