@@ -222,8 +222,10 @@ settings! {
     /// froxels read after a frame or two, and the request pass (10.5 ms of colonnade's
     /// 138 ms at 16 viewers) only finds what is already there; a filled voxel whose
     /// bits a mover made stale is traced again unasked. Used from the second frame until
-    /// the first frame in which a light changes; from then on the request pass runs
-    /// (docs/decisions.md, "Grid requests from the froxels").
+    /// the first frame in which a light changes; from then on the request pass runs.
+    /// It runs too in a frame after one whose froxels made (or whose grid pass traced)
+    /// more than one ray per 64 froxels with media: a camera moving into space nobody
+    /// has seen (docs/decisions.md, "Grid requests from the froxels").
     #[serde(default)]
     froxel_requests: bool = true;
 
