@@ -447,6 +447,7 @@ impl Renderer {
         frame_ms: f64,
         particles: u32,
     ) -> anyhow::Result<TargetsOutput> {
+        self.world.weigh_froxel_requests(&bytes.counters);
         let world = &self.world;
         let mut images = vec![Vec::new(); targets.len()];
         for (set, output) in self.sets.values().zip(&bytes.outputs) {
@@ -474,8 +475,6 @@ impl Renderer {
                 .gbuffer
                 .raster_triangles(u64::from(bytes.counters[C_RASTER_TRIANGLES])),
         });
-        self.world.weigh_froxel_requests(&bytes.counters);
-        let world = &self.world;
         let froxels_written = world.has_media();
         for set in self.sets.values_mut() {
             set.finish(&world.settings, froxels_written);

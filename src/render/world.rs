@@ -208,7 +208,6 @@ impl World {
         }
     }
 
-    /// Whether the scene has media (else no froxel stage runs).
     /// `froxel_requests`, after a frame: whether the next may leave the requests to the
     /// froxels. They make the voxels the grid lacks in place (each voxel by every froxel
     /// that reads it, and traced once more by the next grid pass), while the request
@@ -229,6 +228,7 @@ impl World {
             || u64::from(rays) * IN_PLACE_RAY_FROXELS <= u64::from(counters[C_FROXELS_WITH_MEDIA]);
     }
 
+    /// Whether the scene has media (else no froxel stage runs).
     pub(crate) fn has_media(&self) -> bool {
         !self.scene.media.is_empty()
     }
