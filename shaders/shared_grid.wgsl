@@ -69,6 +69,121 @@ fn sphere_in_view(v: View, c: vec3f, r: f32) -> bool {
         && y - z * v.tan_y <= r * sqrt(1.0 + v.tan_y * v.tan_y);
 }
 
+// FLAG_DEMAND on a dense grid: `scan` lists the workgroups of `main_listed` (4 × 4 × 4
+// words, as `main`'s, numbered x + gx·(y + gy·z)) that have work this frame, and
+// `main_listed` runs over those alone (an indirect dispatch; src/render/shared_grid.rs).
+@group(1) @binding(6) var<storage, read_write> listed: array<u32>;
+// The indirect dispatch's (x, y, z): x counts the listed workgroups.
+@group(1) @binding(7) var<storage, read_write> listed_args: array<atomic<u32>>;
+
+// What one word does this frame: which of its 4 voxels trace which lights, its light
+// and valid bits after the stale ones are dropped, and its media codes.
+struct WordPlan {
+    // The grid word with the bits about to be traced cleared.
+    word: u32,
+    valid_bits: u32,
+    old_valid: u32,
+    // FLAG_GRID_MEDIA: the codes to write (with `fill_codes`) where `coded` is set.
+    codes: u32,
+    coded: u32,
+    old_codes: u32,
+    needed: u32,
+    // Bits 0..3: the voxels that trace; `stale`: their lights, 8 bits per voxel.
+    traced: u32,
+    stale: u32,
+}
+
+// The plan of the word at `gid` (inside the grid). `main` and `main_listed` fill the
+// media codes it finds missing; `scan` only asks whether there are any.
+fn plan_word(gid: vec3u, fill_codes: bool) -> WordPlan {
+    var plan: WordPlan;
+    let dims = frame.grid_dims;
+    let word_index = gid.x + frame.grid_words_x * (gid.y + dims.y * gid.z);
+    let cache = (frame.flags & FLAG_CACHE) != 0u;
+    // Stale bits are dropped in every word, whether or not it is updated this frame.
+    let dirty = frame.dirty_lights & 0xffu;
+    plan.old_valid = select(0u, valid[word_index], cache);
+    plan.valid_bits = plan.old_valid & ~(dirty * 0x01010101u);
+    if plan.valid_bits != 0u && all(frame.moved_min <= frame.moved_max) {
+        for (var i = 0u; i < 4u && gid.x * 4u + i < dims.x; i++) {
+            let centre = frame.grid_min + (vec3f(f32(gid.x * 4u + i), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
+            for (var li = 0u; li < frame.light_count; li++) {
+                let bit = 1u << (8u * i + li);
+                if (plan.valid_bits & bit) != 0u && crosses_moved(centre, li) {
+                    plan.valid_bits &= ~bit;
+                }
+            }
+        }
+    }
+    let may_trace = (frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u);
+    let all_lights = (1u << frame.light_count) - 1u;
+    plan.word = grid[word_index];
+    // Trilinear lookups read the 8 voxels around a sample, so a voxel one voxel
+    // outside a frustum may be read: widen the test by a voxel diagonal.
+    var radius = 0.866 * frame.voxel_size;
+    if (frame.flags & FLAG_TRILINEAR) != 0u {
+        radius = 1.732 * frame.voxel_size;
+    }
+    let media = (frame.flags & FLAG_GRID_MEDIA) != 0u;
+    let refill = (frame.flags & FLAG_GRID_MEDIA_MOVES) != 0u;
+    if media {
+        plan.old_codes = grid_density[word_index];
+    }
+    var requested = 0u;
+    if (frame.flags & FLAG_DEMAND) != 0u && (may_trace || media) {
+        requested = requested_voxels(gid.x * 4u, gid.y, gid.z);
+    }
+    for (var i = 0u; i < 4u; i++) {
+        let x = gid.x * 4u + i;
+        if x >= dims.x || !(may_trace || media) {
+            break;
+        }
+        var seen = false;
+        if (frame.flags & FLAG_DEMAND) != 0u {
+            seen = ((requested >> i) & 1u) != 0u;
+            // FLAG_FROXEL_REQUESTS: froxels read a filled voxel without asking, so
+            // one whose light bits a mover made stale is traced again unasked.
+            if !seen && (frame.flags & FLAG_FROXEL_REQUESTS) != 0u {
+                let filled = ((plan.old_codes >> (8u * i)) & 0xffu) != 0u;
+                seen = filled && ((plan.valid_bits >> (8u * i)) & all_lights) != all_lights;
+            }
+        } else {
+            let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
+            for (var vi = 0u; vi < frame.view_count; vi++) {
+                if sphere_in_view(views[vi], centre, radius) {
+                    seen = true;
+                    break;
+                }
+            }
+        }
+        if !seen {
+            continue;
+        }
+        let shift = 8u * i;
+        if media && (refill || ((plan.old_codes >> shift) & 0xffu) == 0u) {
+            if fill_codes {
+                plan.codes |= density_code(voxel_centre(vec3u(x, gid.y, gid.z))) << shift;
+            }
+            plan.coded |= 0xffu << shift;
+        }
+        if !may_trace {
+            continue;
+        }
+        plan.needed += 1u;
+        let current = (plan.valid_bits >> shift) & 0xffu;
+        let stale = all_lights & ~current;
+        if stale == 0u {
+            continue; // every light bit is cached and current
+        }
+        // Keep the current bits; the stale ones are traced below.
+        plan.word = (plan.word & ~(0xffu << shift)) | (((plan.word >> shift) & current) << shift);
+        plan.valid_bits |= stale << shift;
+        plan.traced |= 1u << i;
+        plan.stale |= stale << shift;
+    }
+    return plan;
+}
+
 // The voxels of this workgroup's 64 words that trace this frame, compacted so that every
 // invocation traces from the same list (voxels needed are sparse with the demand-driven
 // update: tracing word by word would leave most SIMD lanes idle). An entry is
@@ -78,114 +193,31 @@ var<workgroup> todo_count: atomic<u32>;
 // Light bits traced this frame, per local word (4 voxels × 8 bits).
 var<workgroup> traced_bits: array<atomic<u32>, 64>;
 
-@compute @workgroup_size(4, 4, 4)
-fn main(
-    @builtin(global_invocation_id) gid: vec3u,
-    @builtin(local_invocation_index) lid: u32,
-    @builtin(workgroup_id) wg: vec3u,
-) {
+// One workgroup of `main`'s: local word `lid` at `gid` of the 4 × 4 × 4 words of
+// workgroup `wg`. `count_needed`: false where `scan` counted the needed voxels.
+fn update_words(gid: vec3u, lid: u32, wg: vec3u, count_needed: bool) {
     var rays = 0u;
-    var traced = 0u;
-    var needed = 0u;
     var filled = 0u;
     let dims = frame.grid_dims;
     let in_grid = gid.x < frame.grid_words_x && gid.y < dims.y && gid.z < dims.z;
     let word_index = gid.x + frame.grid_words_x * (gid.y + dims.y * gid.z);
-    let cache = (frame.flags & FLAG_CACHE) != 0u;
-    var word = 0u;
-    var valid_bits = 0u;
-    var old_valid = 0u;
     if lid == 0u {
         atomicStore(&todo_count, 0u);
     }
     atomicStore(&traced_bits[lid], 0u);
     workgroupBarrier();
+    var plan: WordPlan;
     if in_grid {
-        // Stale bits are dropped in every word, whether or not it is updated this frame.
-        let dirty = frame.dirty_lights & 0xffu;
-        old_valid = select(0u, valid[word_index], cache);
-        valid_bits = old_valid & ~(dirty * 0x01010101u);
-        if valid_bits != 0u && all(frame.moved_min <= frame.moved_max) {
-            for (var i = 0u; i < 4u && gid.x * 4u + i < dims.x; i++) {
-                let centre = frame.grid_min + (vec3f(f32(gid.x * 4u + i), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
-                for (var li = 0u; li < frame.light_count; li++) {
-                    let bit = 1u << (8u * i + li);
-                    if (valid_bits & bit) != 0u && crosses_moved(centre, li) {
-                        valid_bits &= ~bit;
-                    }
-                }
-            }
-        }
-        let may_trace = (frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u);
-        let all_lights = (1u << frame.light_count) - 1u;
-        word = grid[word_index];
-        // Trilinear lookups read the 8 voxels around a sample, so a voxel one voxel
-        // outside a frustum may be read: widen the test by a voxel diagonal.
-        var radius = 0.866 * frame.voxel_size;
-        if (frame.flags & FLAG_TRILINEAR) != 0u {
-            radius = 1.732 * frame.voxel_size;
-        }
-        let media = (frame.flags & FLAG_GRID_MEDIA) != 0u;
-        let refill = (frame.flags & FLAG_GRID_MEDIA_MOVES) != 0u;
-        var codes = 0u;
-        var coded = 0u;
-        var old_codes = 0u;
-        if media {
-            old_codes = grid_density[word_index];
-        }
-        var requested = 0u;
-        if (frame.flags & FLAG_DEMAND) != 0u && (may_trace || media) {
-            requested = requested_voxels(gid.x * 4u, gid.y, gid.z);
-        }
+        plan = plan_word(gid, true);
         for (var i = 0u; i < 4u; i++) {
-            let x = gid.x * 4u + i;
-            if x >= dims.x || !(may_trace || media) {
-                break;
+            if ((plan.traced >> i) & 1u) != 0u {
+                let stale = (plan.stale >> (8u * i)) & 0xffu;
+                todo[atomicAdd(&todo_count, 1u)] = (lid << 2u) | i | (stale << 8u);
             }
-            var seen = false;
-            if (frame.flags & FLAG_DEMAND) != 0u {
-                seen = ((requested >> i) & 1u) != 0u;
-                // FLAG_FROXEL_REQUESTS: froxels read a filled voxel without asking, so
-                // one whose light bits a mover made stale is traced again unasked.
-                if !seen && (frame.flags & FLAG_FROXEL_REQUESTS) != 0u {
-                    let filled = ((old_codes >> (8u * i)) & 0xffu) != 0u;
-                    seen = filled && ((valid_bits >> (8u * i)) & all_lights) != all_lights;
-                }
-            } else {
-                let centre = frame.grid_min + (vec3f(f32(x), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
-                for (var vi = 0u; vi < frame.view_count; vi++) {
-                    if sphere_in_view(views[vi], centre, radius) {
-                        seen = true;
-                        break;
-                    }
-                }
-            }
-            if !seen {
-                continue;
-            }
-            let shift = 8u * i;
-            if media && (refill || ((old_codes >> shift) & 0xffu) == 0u) {
-                codes |= density_code(voxel_centre(vec3u(x, gid.y, gid.z))) << shift;
-                coded |= 0xffu << shift;
-            }
-            if !may_trace {
-                continue;
-            }
-            needed += 1u;
-            let current = (valid_bits >> shift) & 0xffu;
-            let stale = all_lights & ~current;
-            if stale == 0u {
-                continue; // every light bit is cached and current
-            }
-            // Keep the current bits; the stale ones are traced below.
-            word = (word & ~(0xffu << shift)) | (((word >> shift) & current) << shift);
-            valid_bits |= stale << shift;
-            traced |= 1u << i;
-            todo[atomicAdd(&todo_count, 1u)] = (lid << 2u) | i | (stale << 8u);
         }
-        if coded != 0u {
-            grid_density[word_index] = codes | (old_codes & ~coded);
-            filled = countOneBits(coded) / 8u;
+        if plan.coded != 0u {
+            grid_density[word_index] = plan.codes | (plan.old_codes & ~plan.coded);
+            filled = countOneBits(plan.coded) / 8u;
         }
     }
     workgroupBarrier();
@@ -201,18 +233,80 @@ fn main(
     }
     workgroupBarrier();
     if in_grid {
-        if traced != 0u {
-            grid[word_index] = word | atomicLoad(&traced_bits[lid]);
-            atomicOr(&touched[word_index / 8u], traced << (4u * (word_index % 8u)));
+        if plan.traced != 0u {
+            grid[word_index] = plan.word | atomicLoad(&traced_bits[lid]);
+            atomicOr(&touched[word_index / 8u], plan.traced << (4u * (word_index % 8u)));
         }
-        if cache && valid_bits != old_valid {
-            valid[word_index] = valid_bits;
+        if (frame.flags & FLAG_CACHE) != 0u && plan.valid_bits != plan.old_valid {
+            valid[word_index] = plan.valid_bits;
         }
     }
     count(C_GRID_RAYS, rays);
-    count(C_VOXELS_TRACED, countOneBits(traced));
-    count(C_VOXELS_NEEDED, needed);
+    count(C_VOXELS_TRACED, countOneBits(plan.traced));
+    if count_needed {
+        count(C_VOXELS_NEEDED, plan.needed);
+    }
     count(C_GRID_MEDIA_VOXELS, filled);
+}
+
+@compute @workgroup_size(4, 4, 4)
+fn main(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wg: vec3u,
+) {
+    update_words(gid, lid, wg, true);
+}
+
+// `main`'s workgroups per axis.
+fn word_groups() -> vec3u {
+    return (vec3u(frame.grid_words_x, frame.grid_dims.y, frame.grid_dims.z) + 3u) / 4u;
+}
+
+// One invocation per workgroup of `main`: whether any of its 64 words traces, fills a
+// media code or drops a stale bit this frame; such workgroups are listed for
+// `main_listed`. Without workgroup barriers, so llvmpipe runs it as straight SIMD code
+// (`main`'s barriers make it run invocation by invocation): with a cached grid most
+// workgroups have nothing to do. Counts every word's needed voxels. 2-D dispatch: x +
+// y·64·workgroups_x.
+@compute @workgroup_size(64, 1, 1)
+fn scan(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) nw: vec3u) {
+    let id = gid.x + gid.y * nw.x * 64u;
+    if id == 0u {
+        atomicStore(&listed_args[1], 1u);
+        atomicStore(&listed_args[2], 1u);
+    }
+    let groups = word_groups();
+    var needed = 0u;
+    if id < groups.x * groups.y * groups.z {
+        let wg = vec3u(id % groups.x, (id / groups.x) % groups.y, id / (groups.x * groups.y));
+        var work = false;
+        for (var w = 0u; w < 64u; w++) {
+            let g = wg * 4u + vec3u(w % 4u, (w / 4u) % 4u, w / 16u);
+            if g.x < frame.grid_words_x && g.y < frame.grid_dims.y && g.z < frame.grid_dims.z {
+                let plan = plan_word(g, false);
+                needed += plan.needed;
+                work = work || plan.traced != 0u || plan.coded != 0u || plan.valid_bits != plan.old_valid;
+            }
+        }
+        if work {
+            listed[atomicAdd(&listed_args[0], 1u)] = id;
+        }
+    }
+    count(C_VOXELS_NEEDED, needed);
+}
+
+// `main` over the workgroups `scan` listed (one dispatched workgroup per entry).
+@compute @workgroup_size(4, 4, 4)
+fn main_listed(
+    @builtin(local_invocation_id) local: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) slot: vec3u,
+) {
+    let groups = word_groups();
+    let id = listed[slot.x];
+    let wg = vec3u(id % groups.x, (id / groups.x) % groups.y, id / (groups.x * groups.y));
+    update_words(wg * 4u + local, lid, wg, false);
 }
 
 // Sparse grid update: one invocation per pool word (2D dispatch: x + y·64·workgroups_x);

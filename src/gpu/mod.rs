@@ -4,8 +4,9 @@ use anyhow::{anyhow, Context as _};
 use wgpu::util::DeviceExt as _;
 
 /// Storage buffers a compute stage binds at most: the scene's group 0 (16, the smoke's
-/// shadow maps and the ambient grid included) and the stage's own group (6).
-const STORAGE_BUFFERS_NEEDED: u32 = 22;
+/// shadow maps and the ambient grid included) and the stage's own group (8: the shared
+/// grid's).
+const STORAGE_BUFFERS_NEEDED: u32 = 24;
 
 /// The wgpu device and queue fogcast renders with, and what the adapter can do.
 pub struct GpuContext {

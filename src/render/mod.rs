@@ -57,7 +57,7 @@ use crate::scene::{Bvh, Camera, Scene};
 use gbuffer::Phase;
 use gpu_types::*;
 use readback::{Readback, ReadbackBytes};
-pub(crate) use stage::{dispatch, Timestamps};
+pub(crate) use stage::{dispatch, dispatch_indirect, Timestamps};
 use std::collections::btree_map::Entry;
 use std::collections::BTreeMap;
 use std::sync::Arc;

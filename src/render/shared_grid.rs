@@ -10,7 +10,7 @@
 use super::froxel_cull::FroxelCull;
 use super::gpu_types::{FLAG_CACHE, FLAG_DEMAND, FLAG_SPARSE};
 use super::media_layer::GridMedia;
-use super::{dispatch, Settings, Stage, Timestamps, ViewerSet};
+use super::{dispatch, dispatch_indirect, Settings, Stage, Timestamps, ViewerSet};
 use crate::gpu::Access::{Read, ReadWrite};
 use crate::gpu::GpuContext;
 use glam::{UVec3, Vec3};
@@ -50,8 +50,29 @@ pub struct SharedShadowGrid {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
     sparse_pipeline: wgpu::ComputePipeline,
+    /// The demand-driven dense update in two passes: a scan lists the workgroups with
+    /// work and the update runs over those alone ([`Listed`]).
+    listed: Option<Listed>,
+    /// The listed workgroups' numbers (x + gx·(y + gy·z)), one u32 each (a 16-byte
+    /// stand-in without a list).
+    listed_groups: wgpu::Buffer,
+    /// The indirect dispatch's workgroups (x, y, z); x is the list's length.
+    listed_args: wgpu::Buffer,
     request_layout: wgpu::BindGroupLayout,
     request_pipelines: RequestPipelines,
+}
+
+/// The demand-driven dense grid's update over the workgroups that have work. With a
+/// cached grid most voxels are current every frame, and `main`'s workgroup barriers make
+/// llvmpipe run it invocation by invocation over the whole grid (Sponza's 203k words:
+/// about 8 ms a frame with no ray to trace). `scan`, barrier-free, lists the workgroups
+/// whose words trace, fill a media code or drop a stale bit; `main_listed` runs `main`
+/// over them, dispatched indirectly.
+struct Listed {
+    scan: wgpu::ComputePipeline,
+    update: wgpu::ComputePipeline,
+    /// `main`'s workgroups over the whole grid.
+    count: u64,
 }
 
 struct RequestPipelines {
@@ -207,7 +228,9 @@ impl SharedShadowGrid {
         );
         let layout = ctx.storage_layout(
             "shared grid",
-            &[ReadWrite, ReadWrite, Read, ReadWrite, Read, ReadWrite],
+            &[
+                ReadWrite, ReadWrite, Read, ReadWrite, Read, ReadWrite, ReadWrite, ReadWrite,
+            ],
         );
         let request_layout =
             ctx.storage_layout("grid requests", &[ReadWrite, ReadWrite, ReadWrite, Read]);
@@ -231,6 +254,34 @@ impl SharedShadowGrid {
         };
         let storage =
             |label: &str, bytes: u64| ctx.storage(label, bytes, wgpu::BufferUsages::empty());
+        // `main`'s workgroups (4 × 4 × 4 words); listed only where one dispatch
+        // dimension holds them all.
+        let group_count = (words_x.div_ceil(4) as u64)
+            * (dims.y.div_ceil(4) as u64)
+            * (dims.z.div_ceil(4) as u64);
+        let listed = match policy {
+            GridUpdate::Demand { .. }
+                if group_count
+                    <= u64::from(ctx.device.limits().max_compute_workgroups_per_dimension) =>
+            {
+                Some(Listed {
+                    scan: ctx.compute_pipeline_entry(
+                        "shared_grid_scan",
+                        &module,
+                        &[scene_layout, &layout],
+                        "scan",
+                    ),
+                    update: ctx.compute_pipeline_entry(
+                        "shared_grid_listed",
+                        &module,
+                        &[scene_layout, &layout],
+                        "main_listed",
+                    ),
+                    count: group_count,
+                })
+            }
+            _ => None,
+        };
         Ok(SharedShadowGrid {
             min: bounds.0,
             voxel_size_m,
@@ -262,6 +313,20 @@ impl SharedShadowGrid {
                 &[scene_layout, &layout],
                 "update_sparse",
             ),
+            listed_groups: storage(
+                "shared grid listed workgroups",
+                if listed.is_some() {
+                    group_count * 4
+                } else {
+                    16
+                },
+            )?,
+            listed_args: ctx.storage(
+                "shared grid listed dispatch",
+                12,
+                wgpu::BufferUsages::INDIRECT,
+            )?,
+            listed,
             layout,
             request_pipelines: RequestPipelines {
                 dense: request("main"),
@@ -436,31 +501,62 @@ impl SharedShadowGrid {
         ts: &Timestamps,
     ) -> bool {
         enc.clear_buffer(&self.touched, 0, None);
-        let bg = ctx.bind_buffers(
-            "shared grid",
-            &self.layout,
-            &[
-                &self.grid,
-                &self.touched,
-                &self.requests,
-                &self.valid,
-                &self.slot_brick,
-                &self.density,
-            ],
-        );
-        let pipeline = if self.policy.sparse() {
-            &self.sparse_pipeline
-        } else {
-            &self.pipeline
+        // Binding 7 is the list's dispatch arguments for the scan, which writes them;
+        // the dispatch that reads them as its arguments may not bind them as storage too,
+        // so it binds a buffer no grid pass uses there (a dense grid's brick table).
+        let bind = |args: &wgpu::Buffer| {
+            ctx.bind_buffers(
+                "shared grid",
+                &self.layout,
+                &[
+                    &self.grid,
+                    &self.touched,
+                    &self.requests,
+                    &self.valid,
+                    &self.slot_brick,
+                    &self.density,
+                    &self.listed_groups,
+                    args,
+                ],
+            )
         };
-        dispatch(
-            enc,
-            ts,
-            Stage::SharedGrid,
-            pipeline,
-            &[world, &bg],
-            self.workgroups(),
-        );
+        let bg = bind(&self.listed_args);
+        if let Some(listed) = &self.listed {
+            enc.clear_buffer(&self.listed_args, 0, None);
+            let scan = dispatch_1d(listed.count);
+            dispatch(
+                enc,
+                ts,
+                Stage::SharedGrid,
+                &listed.scan,
+                &[world, &bg],
+                scan,
+            );
+            let update_bg = bind(&self.brick_table);
+            let args = (&self.listed_args, 0);
+            dispatch_indirect(
+                enc,
+                ts,
+                Stage::SharedGrid,
+                &listed.update,
+                &[world, &update_bg],
+                args,
+            );
+        } else {
+            let pipeline = if self.policy.sparse() {
+                &self.sparse_pipeline
+            } else {
+                &self.pipeline
+            };
+            dispatch(
+                enc,
+                ts,
+                Stage::SharedGrid,
+                pipeline,
+                &[world, &bg],
+                self.workgroups(),
+            );
+        }
         // Read: cleared for this frame's froxels or the next request pass.
         if self.policy.requests() {
             enc.clear_buffer(&self.requests, 0, None);
@@ -469,7 +565,7 @@ impl SharedShadowGrid {
     }
 
     /// Bytes of every grid buffer (words or pool, touched bits, requests, validity,
-    /// brick table and slots, media density).
+    /// brick table and slots, media density, the listed workgroups).
     pub(crate) fn bytes(&self) -> u64 {
         [
             &self.grid,
@@ -479,6 +575,8 @@ impl SharedShadowGrid {
             &self.brick_table,
             &self.slot_brick,
             &self.density,
+            &self.listed_groups,
+            &self.listed_args,
         ]
         .iter()
         .map(|b| b.size())

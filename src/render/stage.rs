@@ -274,6 +274,30 @@ pub(crate) fn dispatch(
     groups: &[&wgpu::BindGroup],
     [x, y, z]: [u32; 3],
 ) {
+    compute_pass(enc, ts, stage, pipeline, groups).dispatch_workgroups(x, y, z);
+}
+
+/// As [`dispatch`], the workgroups read from `args` (x, y, z u32s at `offset`) when the
+/// pass runs.
+pub(crate) fn dispatch_indirect(
+    enc: &mut wgpu::CommandEncoder,
+    ts: &Timestamps,
+    stage: Stage,
+    pipeline: &wgpu::ComputePipeline,
+    groups: &[&wgpu::BindGroup],
+    (args, offset): (&wgpu::Buffer, u64),
+) {
+    compute_pass(enc, ts, stage, pipeline, groups).dispatch_workgroups_indirect(args, offset);
+}
+
+/// A compute pass of `stage` with `pipeline` and its bind groups set.
+fn compute_pass<'e>(
+    enc: &'e mut wgpu::CommandEncoder,
+    ts: &Timestamps,
+    stage: Stage,
+    pipeline: &wgpu::ComputePipeline,
+    groups: &[&wgpu::BindGroup],
+) -> wgpu::ComputePass<'e> {
     let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
         label: Some(stage.name()),
         timestamp_writes: ts.compute(stage),
@@ -282,7 +306,7 @@ pub(crate) fn dispatch(
     for (i, g) in groups.iter().enumerate() {
         pass.set_bind_group(i as u32, *g, &[]);
     }
-    pass.dispatch_workgroups(x, y, z);
+    pass
 }
 
 #[cfg(test)]
