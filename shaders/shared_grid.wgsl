@@ -263,6 +263,12 @@ fn word_groups() -> vec3u {
     return (vec3u(frame.grid_words_x, frame.grid_dims.y, frame.grid_dims.z) + 3u) / 4u;
 }
 
+// Workgroup number `id` of `main` (x + gx·(y + gy·z), `word_groups`) as (x, y, z).
+fn word_group(id: u32) -> vec3u {
+    let groups = word_groups();
+    return vec3u(id % groups.x, (id / groups.x) % groups.y, id / (groups.x * groups.y));
+}
+
 // One invocation per workgroup of `main`: whether any of its 64 words traces, fills a
 // media code or drops a stale bit this frame; such workgroups are listed for
 // `main_listed`. Without workgroup barriers, so llvmpipe runs it as straight SIMD code
@@ -279,7 +285,7 @@ fn scan(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) nw: 
     let groups = word_groups();
     var needed = 0u;
     if id < groups.x * groups.y * groups.z {
-        let wg = vec3u(id % groups.x, (id / groups.x) % groups.y, id / (groups.x * groups.y));
+        let wg = word_group(id);
         var work = false;
         for (var w = 0u; w < 64u; w++) {
             let g = wg * 4u + vec3u(w % 4u, (w / 4u) % 4u, w / 16u);
@@ -303,9 +309,7 @@ fn main_listed(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) slot: vec3u,
 ) {
-    let groups = word_groups();
-    let id = listed[slot.x];
-    let wg = vec3u(id % groups.x, (id / groups.x) % groups.y, id / (groups.x * groups.y));
+    let wg = word_group(listed[slot.x]);
     update_words(wg * 4u + local, lid, wg, false);
 }
 
