@@ -144,7 +144,7 @@ fn a_fog_box_inside_the_grid_keeps_its_density_up_to_its_faces() {
     // they hold the density at the face. Measured: 0.0003 and 0.0004 mean FLIP against
     // evaluating the fog, and 0.0023 and 0.0067 with the fill at the plain centres.
     let mut scene = Scene::load("colonnade").expect("built-in scene");
-    let mut haze = scene.media[0].clone();
+    let mut haze = scene.media[0];
     haze.noise.frequency = 0.0;
     haze.scattering = glam::Vec3::splat(0.004);
     haze.absorption = 0.0;
