@@ -48,11 +48,8 @@ pub struct SharedShadowGrid {
     pub(crate) media: Option<GridMedia>,
     policy: GridUpdate,
     layout: wgpu::BindGroupLayout,
-    pipeline: wgpu::ComputePipeline,
-    sparse_pipeline: wgpu::ComputePipeline,
-    /// The demand-driven dense update in two passes: a scan lists the workgroups with
-    /// work and the update runs over those alone ([`Listed`]).
-    listed: Option<Listed>,
+    /// The update, compiled for this grid's policy alone.
+    update: Update,
     /// The listed workgroups' numbers (x + gx·(y + gy·z)), one u32 each (a 16-byte
     /// stand-in without a list).
     listed_groups: wgpu::Buffer,
@@ -75,11 +72,24 @@ struct Listed {
     count: u64,
 }
 
-struct RequestPipelines {
-    dense: wgpu::ComputePipeline,
-    mark_bricks: wgpu::ComputePipeline,
-    allocate: wgpu::ComputePipeline,
-    mark_voxels: wgpu::ComputePipeline,
+/// The grid pass a policy runs: one dispatch over the whole grid (`main`, or
+/// `update_sparse` over the pool), or the demand-driven dense update in two passes, a
+/// scan listing the workgroups with work and the update over those alone ([`Listed`]).
+enum Update {
+    Whole(wgpu::ComputePipeline),
+    Listed(Listed),
+}
+
+/// The request passes a policy runs (none for the frustum-gated update): one over the
+/// froxels for a dense grid; for a sparse one the bricks, their slots, then the voxels.
+enum RequestPipelines {
+    None,
+    Dense(wgpu::ComputePipeline),
+    Sparse {
+        mark_bricks: wgpu::ComputePipeline,
+        allocate: wgpu::ComputePipeline,
+        mark_voxels: wgpu::ComputePipeline,
+    },
 }
 
 /// The two request passes of a viewer set (the sparse grid allocates bricks between).
@@ -259,28 +269,34 @@ impl SharedShadowGrid {
         let group_count = (words_x.div_ceil(4) as u64)
             * (dims.y.div_ceil(4) as u64)
             * (dims.z.div_ceil(4) as u64);
-        let listed = match policy {
+        let grid_pipeline = |label: &str, entry: &str| {
+            ctx.compute_pipeline_entry(label, &module, &[scene_layout, &layout], entry)
+        };
+        let update = match policy {
             GridUpdate::Demand { .. }
                 if group_count
                     <= u64::from(ctx.device.limits().max_compute_workgroups_per_dimension) =>
             {
-                Some(Listed {
-                    scan: ctx.compute_pipeline_entry(
-                        "shared_grid_scan",
-                        &module,
-                        &[scene_layout, &layout],
-                        "scan",
-                    ),
-                    update: ctx.compute_pipeline_entry(
-                        "shared_grid_listed",
-                        &module,
-                        &[scene_layout, &layout],
-                        "main_listed",
-                    ),
+                Update::Listed(Listed {
+                    scan: grid_pipeline("shared_grid_scan", "scan"),
+                    update: grid_pipeline("shared_grid_listed", "main_listed"),
                     count: group_count,
                 })
             }
-            _ => None,
+            GridUpdate::Sparse { .. } => {
+                Update::Whole(grid_pipeline("shared_grid_sparse", "update_sparse"))
+            }
+            _ => Update::Whole(grid_pipeline("shared_grid", "main")),
+        };
+        let listed = matches!(update, Update::Listed(_));
+        let request_pipelines = match policy {
+            _ if !policy.requests() => RequestPipelines::None,
+            GridUpdate::Sparse { .. } => RequestPipelines::Sparse {
+                mark_bricks: request("mark_bricks"),
+                allocate: request("allocate"),
+                mark_voxels: request("mark_voxels"),
+            },
+            _ => RequestPipelines::Dense(request("main")),
         };
         Ok(SharedShadowGrid {
             min: bounds.0,
@@ -306,34 +322,18 @@ impl SharedShadowGrid {
             )?,
             media,
             policy,
-            pipeline: ctx.compute_pipeline("shared_grid", &module, &[scene_layout, &layout]),
-            sparse_pipeline: ctx.compute_pipeline_entry(
-                "shared_grid_sparse",
-                &module,
-                &[scene_layout, &layout],
-                "update_sparse",
-            ),
             listed_groups: storage(
                 "shared grid listed workgroups",
-                if listed.is_some() {
-                    group_count * 4
-                } else {
-                    16
-                },
+                if listed { group_count * 4 } else { 16 },
             )?,
             listed_args: ctx.storage(
                 "shared grid listed dispatch",
                 12,
                 wgpu::BufferUsages::INDIRECT,
             )?,
-            listed,
+            update,
             layout,
-            request_pipelines: RequestPipelines {
-                dense: request("main"),
-                mark_bricks: request("mark_bricks"),
-                allocate: request("allocate"),
-                mark_voxels: request("mark_voxels"),
-            },
+            request_pipelines,
             request_layout,
         })
     }
@@ -445,12 +445,11 @@ impl SharedShadowGrid {
         phase: RequestPhase,
         ts: &Timestamps,
     ) {
-        let p = &self.request_pipelines;
-        let pipeline = match (phase, self.policy.sparse()) {
-            (RequestPhase::Mark, false) => &p.dense,
-            (RequestPhase::Mark, true) => &p.mark_bricks,
-            (RequestPhase::Voxels, true) => &p.mark_voxels,
-            (RequestPhase::Voxels, false) => return,
+        let pipeline = match (phase, &self.request_pipelines) {
+            (RequestPhase::Mark, RequestPipelines::Dense(p)) => p,
+            (RequestPhase::Mark, RequestPipelines::Sparse { mark_bricks, .. }) => mark_bricks,
+            (RequestPhase::Voxels, RequestPipelines::Sparse { mark_voxels, .. }) => mark_voxels,
+            _ => return,
         };
         if set.vol.slices <= set.vol.frustum_slices {
             return;
@@ -475,16 +474,16 @@ impl SharedShadowGrid {
         world: &wgpu::BindGroup,
         ts: &Timestamps,
     ) {
-        if !self.policy.sparse() {
+        let RequestPipelines::Sparse { allocate, .. } = &self.request_pipelines else {
             return;
-        }
+        };
         // The allocation reads no column limits: a stand-in fills the binding.
         let bg = self.request_bind_group(ctx, &self.valid);
         dispatch(
             enc,
             ts,
             Stage::GridRequests,
-            &self.request_pipelines.allocate,
+            allocate,
             &[world, &bg],
             dispatch_1d(self.bricks()),
         );
@@ -521,7 +520,7 @@ impl SharedShadowGrid {
             )
         };
         let bg = bind(&self.listed_args);
-        if let Some(listed) = &self.listed {
+        if let Update::Listed(listed) = &self.update {
             enc.clear_buffer(&self.listed_args, 0, None);
             let scan = dispatch_1d(listed.count);
             dispatch(
@@ -542,12 +541,7 @@ impl SharedShadowGrid {
                 &[world, &update_bg],
                 args,
             );
-        } else {
-            let pipeline = if self.policy.sparse() {
-                &self.sparse_pipeline
-            } else {
-                &self.pipeline
-            };
+        } else if let Update::Whole(pipeline) = &self.update {
             dispatch(
                 enc,
                 ts,
