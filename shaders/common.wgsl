@@ -83,8 +83,7 @@ const FLAG_FROXEL_MAPS: u32 = 16384u; // shared: froxels read the maps of the li
 const FLAG_MAP_EDGES: u32 = 32768u; // shared: where the grid's voxels disagree, the map
 const FLAG_GRID_MEDIA: u32 = 65536u; // shared: the grid carries the costly media's density (grid_density)
 const FLAG_GRID_MEDIA_MOVES: u32 = 131072u; // grid_media: the media move (refill every needed voxel each frame)
-const FLAG_FROXEL_REQUESTS: u32 = 262144u;
-const FLAG_GRID_MEDIA_CLAMPED: u32 = 524288u; // grid_media: density at voxel centres clamped into the one medium's box // no request pass: froxels request the voxels they find unfilled
+const FLAG_FROXEL_REQUESTS: u32 = 262144u; // no request pass: froxels request the voxels they find unfilled
 
 struct View {
     view_proj: mat4x4f,
@@ -367,16 +366,16 @@ fn trace_voxel(q: vec3u, which: u32, rays: ptr<function, u32>) -> u32 {
 
 // The summed density of the media the grid carries (in_layer with FLAG_GRID_MEDIA) at
 // `p`, as its 8-bit code: 1 + the density in steps of frame.grid_media_unit (0: not
-// filled yet). With FLAG_GRID_MEDIA_CLAMPED (one box-shaped medium, whose box bounds
-// the froxels that read the grid) at `p` clamped into its box: a voxel just outside a
-// face holds the density at the face, so reads inside run up to the face undimmed.
+// filled yet). Evaluated at `p` clamped into the box froxels read the grid in
+// (frame.grid_media_min..max, which holds the media): a voxel beyond one of its faces
+// holds the density at the face, so a trilinear read just inside runs up to the face
+// undimmed instead of mixing in empty voxels the froxels outside never read.
 fn density_code(p: vec3f) -> u32 {
-    let clamped = (frame.flags & FLAG_GRID_MEDIA_CLAMPED) != 0u;
+    let q = clamp(p, frame.grid_media_min, frame.grid_media_max);
     var d = 0.0;
     for (var i = 0u; i < frame.medium_count; i++) {
         if media[i].in_layer == 1u {
-            let m = media[i];
-            d += medium_density(m, select(p, clamp(p, m.min, m.max), clamped));
+            d += medium_density(media[i], q);
         }
     }
     return 1u + u32(clamp(round(d / frame.grid_media_unit), 0.0, 254.0));

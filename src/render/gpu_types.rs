@@ -29,9 +29,6 @@ pub(crate) const FLAG_GRID_MEDIA_MOVES: u32 = 131072;
 /// `froxel_requests` this frame: no request pass; froxels request the voxels they find
 /// unfilled for the next frame's grid pass, and trace their own rays meanwhile.
 pub(crate) const FLAG_FROXEL_REQUESTS: u32 = 262144;
-/// With `FLAG_GRID_MEDIA`: the fill reads the medium at the voxel centre clamped into
-/// its box (`GridMedia::clamped`).
-pub(crate) const FLAG_GRID_MEDIA_CLAMPED: u32 = 524288;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 13;

@@ -185,7 +185,10 @@ pub(crate) struct GridMedia {
     pub in_grid: Vec<bool>,
     /// The first of them (whose coefficients they all have).
     pub first: u32,
-    /// The box that holds them (over their whole paths): froxels inside read the grid.
+    /// The box that holds them (over their whole paths): froxels inside read the grid,
+    /// and the fill evaluates the media at voxel centres clamped into it, so that a
+    /// voxel beyond a face holds the density at the face (shared_grid.wgsl's
+    /// `density_code`).
     pub min: Vec3,
     pub max: Vec3,
     /// Density of one step of the 8-bit code: the largest summed density / 254 (code
@@ -194,14 +197,6 @@ pub(crate) struct GridMedia {
     /// Whether one of them moves: then every needed voxel is refilled every frame;
     /// static media fill each voxel once, the first frame it is needed.
     pub animated: bool,
-    /// Whether the fill evaluates the density at the voxel centre clamped into the
-    /// medium's box: one box-shaped medium (a box, height or constant fog), whose box
-    /// is `min`..`max`, the box froxels read the grid in. Its density then runs on past
-    /// the box's faces, and a trilinear read just inside a face interpolates towards the
-    /// density at the face instead of towards the empty voxels beyond it, which thinned
-    /// the fog for half a voxel along every face wherever the grid reaches past the
-    /// box (other media widen it): tests/grid_media.rs, `a_fog_box_inside_the_grid…`.
-    pub clamped: bool,
 }
 
 /// [`GridMedia`] for `scene` on a grid of `voxel_m` voxels, or `None` when no medium
@@ -238,11 +233,6 @@ pub(crate) fn grid_media(scene: &Scene, voxel_m: f32) -> Option<GridMedia> {
         max,
         unit: largest / 254.0,
         animated: moves(scene, &ids),
-        clamped: ids.len() == 1
-            && !matches!(
-                scene.media[ids[0]].kind,
-                MediumKind::Sphere | MediumKind::Volume
-            ),
         in_grid,
     })
 }

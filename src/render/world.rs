@@ -309,9 +309,6 @@ impl World {
                 if m.animated {
                     flags |= FLAG_GRID_MEDIA_MOVES;
                 }
-                if m.clamped {
-                    flags |= FLAG_GRID_MEDIA_CLAMPED;
-                }
             }
         }
         // `froxel_requests`: a filled voxel (density code ≠ 0) has current light bits
