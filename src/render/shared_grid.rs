@@ -520,36 +520,37 @@ impl SharedShadowGrid {
             )
         };
         let bg = bind(&self.listed_args);
-        if let Update::Listed(listed) = &self.update {
-            enc.clear_buffer(&self.listed_args, 0, None);
-            let scan = dispatch_1d(listed.count);
-            dispatch(
-                enc,
-                ts,
-                Stage::SharedGrid,
-                &listed.scan,
-                &[world, &bg],
-                scan,
-            );
-            let update_bg = bind(&self.brick_table);
-            let args = (&self.listed_args, 0);
-            dispatch_indirect(
-                enc,
-                ts,
-                Stage::SharedGrid,
-                &listed.update,
-                &[world, &update_bg],
-                args,
-            );
-        } else if let Update::Whole(pipeline) = &self.update {
-            dispatch(
+        match &self.update {
+            Update::Listed(listed) => {
+                enc.clear_buffer(&self.listed_args, 0, None);
+                let scan = dispatch_1d(listed.count);
+                dispatch(
+                    enc,
+                    ts,
+                    Stage::SharedGrid,
+                    &listed.scan,
+                    &[world, &bg],
+                    scan,
+                );
+                let update_bg = bind(&self.brick_table);
+                let args = (&self.listed_args, 0);
+                dispatch_indirect(
+                    enc,
+                    ts,
+                    Stage::SharedGrid,
+                    &listed.update,
+                    &[world, &update_bg],
+                    args,
+                );
+            }
+            Update::Whole(pipeline) => dispatch(
                 enc,
                 ts,
                 Stage::SharedGrid,
                 pipeline,
                 &[world, &bg],
                 self.workgroups(),
-            );
+            ),
         }
         // Read: cleared for this frame's froxels or the next request pass.
         if self.policy.requests() {
