@@ -66,7 +66,7 @@ fn radiance_from(o: vec3f, w: vec3f, jitter: f32, near: ptr<function, bool>) -> 
                 continue;
             }
             var vis: array<f32, 8>;
-            for (var li = 0u; li < min(frame.light_count, 8u); li++) {
+            for (var li = 0u; li < light_count(); li++) {
                 vis[li] = select(0.0, 1.0, light_visible(lights[li], x));
             }
             let source = in_scattering(m, x, w, vis);
@@ -89,7 +89,7 @@ fn radiance_from(o: vec3f, w: vec3f, jitter: f32, near: ptr<function, bool>) -> 
     let p = o + w * hit.t;
     let origin = p + n * (2e-3 + hit.t * 2e-4);
     var e = ambient_irradiance(origin, n);
-    for (var li = 0u; li < frame.light_count; li++) {
+    for (var li = 0u; li < light_count(); li++) {
         let lt = lights[li];
         let tl = to_light(lt, origin);
         let ndl = dot(n, tl.xyz);

@@ -130,6 +130,24 @@ fn volume_on_own_rays(v: View) -> bool {
 
 const NO_HISTORY: u32 = 0xffffffffu;
 
+// The scene's light count as a pipeline constant, 1..=8 (0: not given; then
+// `light_count()`). The per-froxel and per-pixel stages get it (`LIGHTS` in
+// src/render/mod.rs): their loops over the lights then run a count fixed when the pipeline
+// is built, which the shader compiler unrolls, keeping the per-light values in registers
+// (docs/decisions.md, "The light count as a pipeline constant").
+override LIGHTS: u32 = 0u;
+
+// How many lights the scene has.
+fn light_count() -> u32 {
+    return select(frame.light_count, LIGHTS, LIGHTS > 0u);
+}
+
+// How many of a grid mask's 8 light bits loops over them visit: the scene's lights where
+// the pipeline knows them, else all 8.
+fn light_slots() -> u32 {
+    return select(8u, LIGHTS, LIGHTS > 0u);
+}
+
 // Light.kind (LightKind::gpu_code in src/scene/types.rs)
 const LIGHT_DIRECTIONAL: u32 = 0u;
 const LIGHT_POINT: u32 = 1u;
@@ -348,7 +366,7 @@ fn voxel_centre(q: vec3u) -> vec3f {
 fn trace_voxel(q: vec3u, which: u32, rays: ptr<function, u32>) -> u32 {
     let centre = voxel_centre(q);
     var mask = 0u;
-    for (var li = 0u; li < frame.light_count; li++) {
+    for (var li = 0u; li < light_count(); li++) {
         if ((which >> li) & 1u) == 0u {
             continue;
         }
@@ -1046,7 +1064,7 @@ fn ambient_irradiance(p: vec3f, n: vec3f) -> vec3f {
 // on its way to p (`light_transmittance`). Ambient light as `ambient_radiance`.
 fn in_scattering(m: MediumSample, p: vec3f, view_dir: vec3f, vis: array<f32, 8>) -> vec3f {
     var l_in = ambient_radiance(p, view_dir, m.g);
-    for (var i = 0u; i < frame.light_count; i++) {
+    for (var i = 0u; i < light_count(); i++) {
         if vis[i] <= 0.0 {
             continue;
         }

@@ -44,7 +44,7 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
         var irradiance = ambient_irradiance(p, n);
         // Offset along the normal, scaled with distance (depth precision).
         let origin = p + n * (2e-3 + depth * 2e-4);
-        for (var li = 0u; li < frame.light_count; li++) {
+        for (var li = 0u; li < light_count(); li++) {
             let l = lights[li];
             let tl = to_light(l, origin);
             let ndl = dot(n, tl.xyz);

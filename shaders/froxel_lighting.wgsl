@@ -65,7 +65,7 @@ fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
         let wz = select(1.0 - f.z, f.z, oz == 1u);
         let a = (1.0 - f.x) * wy * wz;
         let b = f.x * wy * wz;
-        for (var li = 0u; li < 8u; li++) {
+        for (var li = 0u; li < light_slots(); li++) {
             vis[li] += a * f32((m0 >> li) & 1u);
             vis[li] += b * f32((m1 >> li) & 1u);
         }
@@ -117,7 +117,7 @@ fn made_trilinear(base: vec3i, f: vec3f, rays: ptr<function, u32>) -> GridVisibi
         let b = f.x * wy * wz;
         let m0 = masks[2u * yz];
         let m1 = masks[2u * yz + 1u];
-        for (var li = 0u; li < 8u; li++) {
+        for (var li = 0u; li < light_slots(); li++) {
             vis[li] += a * f32((m0 >> li) & 1u);
             vis[li] += b * f32((m1 >> li) & 1u);
         }
@@ -161,7 +161,7 @@ fn grid_visibility(p: vec3f, rays: ptr<function, u32>) -> GridVisibility {
     let g = grid_coord(p);
     if (frame.flags & FLAG_TRILINEAR) == 0u {
         let m = grid_mask(vec3i(floor(g + 0.5)));
-        for (var li = 0u; li < 8u; li++) {
+        for (var li = 0u; li < light_slots(); li++) {
             vis[li] = f32((m >> li) & 1u);
         }
         return GridVisibility(vis, m == MASK_MISSING, 0.0);
@@ -178,7 +178,7 @@ fn grid_visibility(p: vec3f, rays: ptr<function, u32>) -> GridVisibility {
         let w = w3.x * w3.y * w3.z;
         let m = grid_mask(base + o);
         missing = missing || m == MASK_MISSING;
-        for (var li = 0u; li < 8u; li++) {
+        for (var li = 0u; li < light_slots(); li++) {
             vis[li] += w * f32((m >> li) & 1u);
         }
     }
@@ -221,7 +221,7 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
     } else if (frame.flags & FLAG_MAPS) != 0u {
         // maps: every froxel reads the shared shadow maps (2×2 PCF, one texel towards
         // the light); a light without a map traces.
-        for (var li = 0u; li < frame.light_count; li++) {
+        for (var li = 0u; li < light_count(); li++) {
             let l = lights[li];
             vis[li] = 0.0;
             if all(light_radiance(l, p) == vec3f(0.0)) {
@@ -240,7 +240,7 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
         // where FLAG_MAP_EDGES asks.
         var mapped = 0u;
         if (frame.flags & FLAG_FROXEL_MAPS) != 0u {
-            for (var li = 0u; li < frame.light_count; li++) {
+            for (var li = 0u; li < light_count(); li++) {
                 if has_map(li) {
                     mapped |= 1u << li;
                     vis[li] = 0.0;
@@ -250,13 +250,13 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 }
             }
         }
-        if mapped != (1u << frame.light_count) - 1u {
+        if mapped != (1u << light_count()) - 1u {
             var other: array<f32, 8>;
             if slice < frame.frustum_slices {
                 let fx = min(xy.x * v.froxel_px / v.frustum_px, v.frustum_dims.x - 1u);
                 let fy = min(xy.y * v.froxel_px / v.frustum_px, v.frustum_dims.y - 1u);
                 let mask = frustum[v.frustum_base + fx + v.frustum_dims.x * (fy + v.frustum_dims.y * slice)];
-                for (var li = 0u; li < 8u; li++) {
+                for (var li = 0u; li < light_slots(); li++) {
                     other[li] = f32((mask >> li) & 1u);
                 }
             } else {
@@ -268,14 +268,14 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
                 // Where the voxels around p disagree, a shadow edge runs between them:
                 // the map resolves it (FLAG_MAP_EDGES).
                 if (frame.flags & FLAG_MAP_EDGES) != 0u {
-                    for (var li = 0u; li < frame.light_count; li++) {
+                    for (var li = 0u; li < light_count(); li++) {
                         if other[li] > 0.0 && other[li] < 1.0 && has_map(li) {
                             other[li] = fog_map_visibility(li, p);
                         }
                     }
                 }
             }
-            for (var li = 0u; li < 8u; li++) {
+            for (var li = 0u; li < light_slots(); li++) {
                 if ((mapped >> li) & 1u) == 0u {
                     vis[li] = other[li];
                 }
@@ -283,7 +283,7 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
         }
     }
     if trace {
-        for (var li = 0u; li < frame.light_count; li++) {
+        for (var li = 0u; li < light_count(); li++) {
             let l = lights[li];
             vis[li] = 0.0;
             if all(light_radiance(l, p) == vec3f(0.0)) {

@@ -17,7 +17,7 @@
 fn main(@builtin(global_invocation_id) gid: vec3u) {
     var filled = 0u;
     let li = gid.z;
-    if li < frame.light_count && ((frame.transmittance_dirty >> li) & 1u) != 0u {
+    if li < light_count() && ((frame.transmittance_dirty >> li) & 1u) != 0u {
         let v = light_media[li];
         if v.nodes > 0u && gid.x < v.dims.x && gid.y < v.dims.y {
             let l = lights[li];

@@ -27,7 +27,7 @@ fn main(
             for (var slice = 0u; slice < min(frame.frustum_slices, v.light_slices); slice++) {
                 let p = froxel_point(v, dir, slice);
                 var mask = 0u;
-                for (var li = 0u; li < frame.light_count; li++) {
+                for (var li = 0u; li < light_count(); li++) {
                     let l = lights[li];
                     if all(light_radiance(l, p) == vec3f(0.0)) {
                         continue;

@@ -107,7 +107,7 @@ fn plan_word(gid: vec3u, fill_codes: bool) -> WordPlan {
     if plan.valid_bits != 0u && all(frame.moved_min <= frame.moved_max) {
         for (var i = 0u; i < 4u && gid.x * 4u + i < dims.x; i++) {
             let centre = frame.grid_min + (vec3f(f32(gid.x * 4u + i), f32(gid.y), f32(gid.z)) + 0.5) * frame.voxel_size;
-            for (var li = 0u; li < frame.light_count; li++) {
+            for (var li = 0u; li < light_count(); li++) {
                 let bit = 1u << (8u * i + li);
                 if (plan.valid_bits & bit) != 0u && crosses_moved(centre, li) {
                     plan.valid_bits &= ~bit;
@@ -116,7 +116,7 @@ fn plan_word(gid: vec3u, fill_codes: bool) -> WordPlan {
         }
     }
     let may_trace = (frame.flags & FLAG_PARITY) == 0u || (gid.z & 1u) == (frame.frame_index & 1u);
-    let all_lights = (1u << frame.light_count) - 1u;
+    let all_lights = (1u << light_count()) - 1u;
     plan.word = grid[word_index];
     // Trilinear lookups read the 8 voxels around a sample, so a voxel one voxel
     // outside a frustum may be read: widen the test by a voxel diagonal.

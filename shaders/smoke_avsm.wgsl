@@ -198,7 +198,7 @@ fn insert_crossing(c: Crossing, max_nodes: u32) {
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3u) {
     // One map record per z: light gid.z / SMOKE_MAPS_PER_LIGHT, face gid.z % it.
-    if gid.z / SMOKE_MAPS_PER_LIGHT >= frame.light_count {
+    if gid.z / SMOKE_MAPS_PER_LIGHT >= light_count() {
         return;
     }
     let m = smoke_maps[gid.z];

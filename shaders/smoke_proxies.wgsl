@@ -47,7 +47,7 @@ fn main(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_id)
     }
     let p = particles[i];
     var vis = vec2u(0u);
-    for (var li = 0u; li < min(frame.light_count, 8u); li++) {
+    for (var li = 0u; li < light_count(); li++) {
         let l = lights[li];
         var lit = 1.0;
         if has_map(li) {

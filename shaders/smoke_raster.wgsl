@@ -53,7 +53,7 @@ fn smoke_tau(scale: f32, k: f32, b: f32, ta: f32, tb: f32) -> f32 {
 // Light scattered towards the eye per unit of dF at x (before the albedo).
 fn smoke_light(p: SmokeProxy, x: f32, pt: vec3f, dir: vec3f) -> vec3f {
     var l_in = vec3f(0.0);
-    for (var li = 0u; li < min(frame.light_count, 8u); li++) {
+    for (var li = 0u; li < light_count(); li++) {
         let l = lights[li];
         // Geometry: the shared shadow map at this node where the light has one (a
         // particle straddling a sun shaft is lit only inside it), else the proxy pass's

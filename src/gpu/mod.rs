@@ -193,6 +193,19 @@ impl GpuContext {
         layouts: &[&wgpu::BindGroupLayout],
         entry: &str,
     ) -> wgpu::ComputePipeline {
+        self.compute_pipeline_with(label, module, layouts, entry, &[])
+    }
+
+    /// As [`GpuContext::compute_pipeline_entry`], with values for the module's
+    /// pipeline-overridable constants (WGSL `override`), by name.
+    pub fn compute_pipeline_with(
+        &self,
+        label: &str,
+        module: &wgpu::ShaderModule,
+        layouts: &[&wgpu::BindGroupLayout],
+        entry: &str,
+        constants: &[(&str, f64)],
+    ) -> wgpu::ComputePipeline {
         let layouts: Vec<Option<&wgpu::BindGroupLayout>> =
             layouts.iter().map(|l| Some(*l)).collect();
         let layout = self
@@ -208,7 +221,10 @@ impl GpuContext {
                 layout: Some(&layout),
                 module,
                 entry_point: Some(entry),
-                compilation_options: Default::default(),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants,
+                    ..Default::default()
+                },
                 cache: None,
             })
     }

@@ -27,7 +27,12 @@ fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
 }
 
 impl Composite {
-    pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
+    /// `constants`: the scene's light count (`super::light_constants`).
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene_layout: &wgpu::BindGroupLayout,
+        constants: &[(&str, f64)],
+    ) -> Self {
         let layout = ShadowMaps::stage_layout(
             ctx,
             "composite",
@@ -62,7 +67,13 @@ impl Composite {
             view_formats: &[],
         });
         Composite {
-            pipeline: ctx.compute_pipeline("composite", &module, &[scene_layout, &layout]),
+            pipeline: ctx.compute_pipeline_with(
+                "composite",
+                &module,
+                &[scene_layout, &layout],
+                "main",
+                constants,
+            ),
             layout,
             no_smoke,
         }

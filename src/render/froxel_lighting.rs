@@ -92,9 +92,11 @@ pub(crate) struct FroxelLighting {
 }
 
 impl FroxelLighting {
+    /// `constants`: the scene's light count (`super::light_constants`).
     pub(crate) fn new(
         ctx: &GpuContext,
         scene_layout: &wgpu::BindGroupLayout,
+        constants: &[(&str, f64)],
     ) -> anyhow::Result<Self> {
         let own = [Read, Read, ReadWrite, Read, Read, Read, Read, ReadWrite]
             .iter()
@@ -112,7 +114,13 @@ impl FroxelLighting {
             ),
         );
         Ok(FroxelLighting {
-            pipeline: ctx.compute_pipeline("froxel_lighting", &module, &[scene_layout, &layout]),
+            pipeline: ctx.compute_pipeline_with(
+                "froxel_lighting",
+                &module,
+                &[scene_layout, &layout],
+                "main",
+                constants,
+            ),
             layout,
             no_requests: ctx.storage(
                 "froxel lighting: no grid requests",

@@ -16,6 +16,8 @@ mod gbuffer;
 mod gpu_types;
 #[cfg(test)]
 mod history_tests;
+#[cfg(test)]
+mod light_constant_tests;
 mod media_layer;
 mod media_transmittance;
 mod ray_query;
@@ -67,6 +69,14 @@ use viewer_set::ViewerSet;
 const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
 const BVH_WGSL: &str = include_str!("../../shaders/bvh.wgsl");
 const GBUFFER_SURFACE_WGSL: &str = include_str!("../../shaders/gbuffer_surface.wgsl");
+
+/// The `LIGHTS` pipeline constant of shaders/common.wgsl: the scene's light count,
+/// given to the stages that loop over the lights per froxel or per pixel (froxel
+/// lighting, the shadow frustum, the composite), so that their loops run a count the
+/// shader compiler knows.
+pub(crate) fn light_constants(scene: &Scene) -> [(&'static str, f64); 1] {
+    [("LIGHTS", scene.lights.len() as f64)]
+}
 
 /// Compiles one compute stage: the shared bindings and helpers (common.wgsl), the
 /// frame-counter helper for this adapter (per subgroup where supported), BVH traversal,
@@ -135,15 +145,16 @@ impl Renderer {
     ) -> anyhow::Result<Renderer> {
         let world = World::new(ctx.clone(), scene, bvh, settings)?;
         let layout = &world.gpu.layout;
+        let lights = light_constants(&world.scene);
         Ok(Renderer {
             stages: ViewerStages {
                 gbuffer: gbuffer::GBuffer::new(&ctx),
                 cull: froxel_cull::FroxelCull::new(&ctx, layout),
-                frustum: shadow_frustum::ShadowFrustum::new(&ctx, layout),
-                lighting: froxel_lighting::FroxelLighting::new(&ctx, layout)?,
+                frustum: shadow_frustum::ShadowFrustum::new(&ctx, layout, &lights),
+                lighting: froxel_lighting::FroxelLighting::new(&ctx, layout, &lights)?,
                 integration: volume_integration::VolumeIntegration::new(&ctx, layout),
                 smoke: smoke_view::SmokeView::new(&ctx, &world.gpu),
-                composite: composite::Composite::new(&ctx, layout),
+                composite: composite::Composite::new(&ctx, layout, &lights),
             },
             timestamps: Timestamps::new(&ctx),
             sets: BTreeMap::new(),

@@ -13,7 +13,12 @@ pub(crate) struct ShadowFrustum {
 }
 
 impl ShadowFrustum {
-    pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
+    /// `constants`: the scene's light count (`super::light_constants`).
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene_layout: &wgpu::BindGroupLayout,
+        constants: &[(&str, f64)],
+    ) -> Self {
         let layout =
             ShadowMaps::stage_layout(ctx, "shadow frustum", vec![storage_entry(0, ReadWrite)]);
         let module = super::stage_shader(
@@ -25,7 +30,13 @@ impl ShadowFrustum {
             ),
         );
         ShadowFrustum {
-            pipeline: ctx.compute_pipeline("shadow_frustum", &module, &[scene_layout, &layout]),
+            pipeline: ctx.compute_pipeline_with(
+                "shadow_frustum",
+                &module,
+                &[scene_layout, &layout],
+                "main",
+                constants,
+            ),
             layout,
         }
     }
