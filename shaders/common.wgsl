@@ -131,7 +131,7 @@ fn volume_on_own_rays(v: View) -> bool {
 const NO_HISTORY: u32 = 0xffffffffu;
 
 // The scene's light count as a pipeline constant, 1..=8 (0: not given; then
-// `light_count()`). The per-froxel and per-pixel stages get it (`LIGHTS` in
+// `frame.light_count`). The per-froxel and per-pixel stages get it (`light_constants` in
 // src/render/mod.rs): their loops over the lights then run a count fixed when the pipeline
 // is built, which the shader compiler unrolls, keeping the per-light values in registers
 // (docs/decisions.md, "The light count as a pipeline constant").
