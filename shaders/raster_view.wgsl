@@ -12,7 +12,9 @@ struct RasterView {
     // `occlusion_cull`: where the view's depth pyramid starts in shaders/hiz.wgsl's
     // buffer.
     hiz_base: u32,
-    _pad2: u32,
+    // `micro_raster`: where the view's pixels start in the small triangles' buffer
+    // (shaders/triangle_cull.wgsl, shaders/micro_resolve.wgsl).
+    micro_base: u32,
     _pad3: array<vec4f, 9>,
 }
 

@@ -16,6 +16,13 @@
 // first list), and the visible ones not drawn yet make the second list. A triangle
 // dropped there lies behind surfaces drawn this frame at every pixel centre it covers,
 // so the picture is the one drawing it gives (up to depth ties between the two lists).
+//
+// With `micro_raster` (one phase only), `cull` rasterises the small triangles itself —
+// those whose screen box holds at most 4 × 4 pixel centres, all corners in front of the
+// eye — instead of listing them: each centre the triangle covers gets the nearest
+// (depth, triangle) by a 64-bit atomicMax (`micro_put`, prepended: shaders/
+// micro_atomic.wgsl), and shaders/micro_resolve.wgsl writes the G-buffer texels where
+// such a triangle lies nearer than what the raster drew.
 
 // RasterView: shaders/raster_view.wgsl.
 @group(0) @binding(0) var<storage, read> views: array<RasterView>;
@@ -36,7 +43,7 @@
 @group(0) @binding(7) var<storage, read_write> args: array<u32>;
 // [0]: this frame's pairs (the pair buffer is longer), a region's words, the scene's
 // clusters, the frame's views; [1].x: which list `compact` writes (0 first, 1 second),
-// [1].y: 1 with `occlusion_cull`.
+// [1].y: 1 with `occlusion_cull`, [1].z: 1 with `micro_raster`.
 @group(0) @binding(8) var<uniform> params: array<vec4u, 2>;
 // The frame's counters (common.wgsl's C_*): the triangles kept, summed over views.
 @group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>>;
@@ -110,11 +117,82 @@ fn covers_a_centre(a: vec2f, b: vec2f, c: vec2f, lo: vec2f, hi: vec2f) -> bool {
     return false;
 }
 
-// Whether the raster can draw any fragment of the triangle of vertices (ia, ib, ic)
-// under `view_proj` in a view of `size` pixels with cull mode `cull`. Conservative: a
-// triangle reaching behind the eye plane skips the pixel-centre test (the raster clips
-// it), and the screen box grows by 1/64 pixel for the raster's sub-pixel snapping.
-fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) -> bool {
+// What becomes of a triangle: dropped, listed for the raster, or rasterised here.
+const DROPPED: u32 = 0u;
+const LISTED: u32 = 1u;
+const MICRO: u32 = 2u;
+
+// Sub-pixel steps a pixel of the raster's grid (8 bits, as llvmpipe and D3D12 snap).
+const SUBPIXELS: f32 = 256.0;
+
+// Whether a pixel centre exactly on the edge from u to v (screen space, y down, the
+// triangle wound so that its inside is on the edges' positive side) is covered: the
+// top-left rule (a horizontal edge with the inside below it, or an edge going up).
+fn top_left(u: vec2f, v: vec2f) -> bool {
+    let d = v - u;
+    return (d.y == 0.0 && d.x > 0.0) || d.y < 0.0;
+}
+
+// Whether the edge from u to v covers centre q (all relative to q, in sub-pixel steps).
+fn edge_covers(u: vec2f, v: vec2f) -> bool {
+    let e = cross2(v - u, -u);
+    return e > 0.0 || (e == 0.0 && top_left(u, v));
+}
+
+// `micro_raster`: rasterises triangle `t` (screen corners sa, sb, sc in pixels; clip z
+// over w `zw`, all w > 0) at the pixel centres k + 0.5 of view `v` for k in [k0, k1]:
+// a centre is covered as the raster decides it, the corners snapped to 1/256 pixel
+// and the top-left rule on edges through it; its depth is the clip depth interpolated
+// there, kept where 0 ≤ z ≤ 1 (the raster clips the rest). Whether it covered one.
+fn micro_raster(v: RasterView, t: u32, sa: vec2f, sb: vec2f, sc: vec2f, zw: vec3f, k0: vec2f, k1: vec2f) -> bool {
+    let lo = max(k0, vec2f(0.0));
+    let hi = min(k1, v.size - 1.0);
+    let snapped_a = round(sa * SUBPIXELS);
+    var snapped_b = round(sb * SUBPIXELS);
+    var snapped_c = round(sc * SUBPIXELS);
+    // Relative to a centre and in steps, every product below is an exact integer in f32
+    // (a box of 4 × 4 centres plus snap: |coordinates| < 2^11, products < 2^23).
+    let area = cross2(snapped_b - snapped_a, snapped_c - snapped_a);
+    if area == 0.0 {
+        return false;
+    }
+    if area < 0.0 {
+        let s = snapped_b;
+        snapped_b = snapped_c;
+        snapped_c = s;
+    }
+    // Screen-space barycentrics of a, b, c (unsnapped, as the raster's interpolation).
+    let inv = 1.0 / cross2(sb - sa, sc - sa);
+    var covered = false;
+    for (var y = lo.y; y <= hi.y; y += 1.0) {
+        for (var x = lo.x; x <= hi.x; x += 1.0) {
+            let q = vec2f(x, y) + 0.5;
+            let qs = q * SUBPIXELS;
+            let a = snapped_a - qs;
+            let b = snapped_b - qs;
+            let c = snapped_c - qs;
+            if edge_covers(a, b) && edge_covers(b, c) && edge_covers(c, a) {
+                let l = vec3f(cross2(sc - sb, q - sb), cross2(sa - sc, q - sc), cross2(sb - sa, q - sa)) * inv;
+                let z = dot(l, zw);
+                if z >= 0.0 && z <= 1.0 {
+                    micro_put(v.micro_base + u32(x) + u32(v.size.x) * u32(y), max(z, 0.0), t);
+                    covered = true;
+                }
+            }
+        }
+    }
+    return covered;
+}
+
+// Whether the raster can draw any fragment of triangle `t` (vertices ia, ib, ic) in
+// view `v` with cull mode `cull` (LISTED), or not (DROPPED); with `micro`, a small one
+// is rasterised here instead (MICRO if it covered a pixel centre, else DROPPED).
+// Conservative: a triangle reaching behind the eye plane skips the pixel-centre test
+// (the raster clips it), and the screen box grows by 1/64 pixel for the raster's
+// sub-pixel snapping.
+fn drawn(v: RasterView, t: u32, ia: u32, ib: u32, ic: u32, cull: u32, micro: bool) -> u32 {
+    let view_proj = v.view_proj;
+    let size = v.size;
     let a = corner(view_proj, ia);
     let b = corner(view_proj, ib);
     let c = corner(view_proj, ic);
@@ -123,7 +201,7 @@ fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) 
     let z = vec3f(a.z, b.z, c.z);
     let w = vec3f(a.w, b.w, c.w);
     if all(x < -w) || all(x > w) || all(y < -w) || all(y > w) || all(z < vec3f(0.0)) || all(z > w) {
-        return false;
+        return DROPPED;
     }
     // The side the eye sees: the sign of det(x, y, w) (Olano and Greer's homogeneous
     // rasterisation), right for corners behind the eye too, which the raster clips away:
@@ -131,10 +209,10 @@ fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) 
     // projected area, counter-clockwise on screen (y up) the front.
     let det = dot(vec3f(a.x, a.y, a.w), cross(vec3f(b.x, b.y, b.w), vec3f(c.x, c.y, c.w)));
     if (cull == CULL_BACK && det < 0.0) || (cull == CULL_FRONT && det > 0.0) {
-        return false;
+        return DROPPED;
     }
     if any(w <= vec3f(1e-6)) {
-        return true;
+        return LISTED;
     }
     let sa = (vec2f(a.x, -a.y) / a.w * 0.5 + 0.5) * size;
     let sb = (vec2f(b.x, -b.y) / b.w * 0.5 + 0.5) * size;
@@ -145,10 +223,13 @@ fn drawn(view_proj: mat4x4f, size: vec2f, ia: u32, ib: u32, ic: u32, cull: u32) 
     let k0 = ceil(lo - 0.5);
     let k1 = floor(hi - 0.5);
     if any(k0 > k1) {
-        return false;
+        return DROPPED;
+    }
+    if micro && all(k1 - k0 <= vec2f(3.0)) {
+        return select(DROPPED, MICRO, micro_raster(v, t, sa, sb, sc, z / w, k0, k1));
     }
     // A small triangle's box may hold a centre the triangle misses.
-    return covers_a_centre(sa, sb, sc, k0, k1);
+    return select(DROPPED, LISTED, covers_a_centre(sa, sb, sc, k0, k1));
 }
 
 @compute @workgroup_size(8)
@@ -158,21 +239,24 @@ fn cull(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @bu
         return;
     }
     let pair = pairs[p];
-    let view_proj = views[pair.x].view_proj;
-    let size = views[pair.x].size;
+    let v = views[pair.x];
     let c = clusters[pair.y];
     let triangles = c.y / 3u;
     let occlusion = params[1].y == 1u;
+    let micro = params[1].z == 1u;
     var first_here = 0u;
+    var micro_here = 0u;
     for (var w = 0u; w < MASK_WORDS; w++) {
         var bits = 0u;
         for (var k = 0u; k < 32u; k++) {
             let t = lane * PER_LANE + w * 32u + k;
             if t < triangles {
                 let i = c.x + 3u * t;
-                if drawn(view_proj, size, indices[i], indices[i + 1u], indices[i + 2u], c.z) {
+                let fate = drawn(v, i / 3u, indices[i], indices[i + 1u], indices[i + 2u], c.z, micro);
+                if fate == LISTED {
                     bits |= 1u << k;
                 }
+                micro_here += select(0u, 1u, fate == MICRO);
             }
         }
         let m = mask_word(p, lane, w);
@@ -187,9 +271,11 @@ fn cull(@builtin(workgroup_id) wg: vec3u, @builtin(num_workgroups) n: vec3u, @bu
         first_here += countOneBits(first);
     }
     let total = subgroupAdd(first_here);
+    // The triangles rasterised here count as drawn.
+    let micro_total = subgroupAdd(micro_here);
     if lane == 0u {
         kept[params[0].y + p * PAIR_WORDS] = total;
-        atomicAdd(&counters[C_RASTER_TRIANGLES], total);
+        atomicAdd(&counters[C_RASTER_TRIANGLES], total + micro_total);
     }
 }
 

@@ -8,7 +8,9 @@
 mod gpu_support;
 
 use fogcast::metrics::compare;
-use fogcast::render::{FrameTarget, Renderer, Settings, TargetsOutput, OCCLUSION_MIN_TRIANGLES};
+use fogcast::render::{
+    FrameTarget, Renderer, Settings, TargetsOutput, MICRO_MIN_TRIANGLES, OCCLUSION_MIN_TRIANGLES,
+};
 use fogcast::scene::Scene;
 use gpu_support::{colonnade, gpu};
 use std::sync::Arc;
@@ -38,7 +40,8 @@ fn render(
     last.expect("at least one frame")
 }
 
-/// One frame at `time_s`, with or without per-view triangle culling.
+/// One frame at `time_s`, with or without per-view triangle culling; every kept
+/// triangle drawn by the raster (`micro_raster` off: its own test below).
 fn frame(
     scene: &Arc<Scene>,
     cull: bool,
@@ -48,9 +51,91 @@ fn frame(
 ) -> TargetsOutput {
     let settings = Settings {
         triangle_cull: cull,
+        micro_raster: false,
         ..Settings::default()
     };
     render(scene, settings, viewers, size, &[time_s])
+}
+
+/// One frame at `time_s` with triangle culling, the small triangles rasterised in
+/// compute (`micro_raster`) or by the raster.
+fn frame_micro(
+    scene: &Arc<Scene>,
+    micro: bool,
+    viewers: usize,
+    size: (u32, u32),
+    time_s: f32,
+) -> TargetsOutput {
+    let settings = Settings {
+        micro_raster: micro,
+        ..Settings::default()
+    };
+    render(scene, settings, viewers, size, &[time_s])
+}
+
+/// The share of the views' pixels that `pixels` is.
+fn share(pixels: usize, (w, h): (u32, u32), views: usize) -> f64 {
+    pixels as f64 / (w as u64 * h as u64 * views as u64) as f64
+}
+
+#[test]
+fn small_triangles_rasterised_in_compute_draw_the_rasters_picture() {
+    // `micro_raster`: Sponza's triangles whose screen box holds at most 4 × 4 pixel
+    // centres are rasterised by the culling pass (snapped corners, top-left rule) and
+    // resolved against the raster's depth. Pixels may differ where the two disagree on
+    // an edge exactly through a centre or on a depth tie; the picture must not.
+    let scene = Arc::new(Scene::load("scenes/sponza.toml").expect("scenes/sponza.toml loads"));
+    const SIZE: (u32, u32) = (320, 180);
+    let micro = frame_micro(&scene, true, 4, SIZE, 0.0);
+    let raster = frame_micro(&scene, false, 4, SIZE, 0.0);
+    let (pixels, flip) = differences(&micro, &raster, SIZE);
+    println!(
+        "4 views of Sponza at 320×180: {} triangles drawn with micro_raster, {} without; \
+         {pixels} pixels differ ({:.3} %), worst mean FLIP {flip:.2e}",
+        micro.stats.raster_triangles,
+        raster.stats.raster_triangles,
+        100.0 * share(pixels, SIZE, 4)
+    );
+    assert!(share(pixels, SIZE, 4) < 0.002, "{pixels} pixels differ");
+    assert!(flip < 1e-3, "FLIP {flip}");
+    // The triangles drawn: the small ones count where they covered a centre, fewer than
+    // the list keeps of them (it keeps any that may cover one, 61,334 against 77,131).
+    let (m, r) = (micro.stats.raster_triangles, raster.stats.raster_triangles);
+    assert!(m <= r && m as f64 > 0.7 * r as f64, "{m} vs {r}");
+    // Its word a pixel is per-viewer memory.
+    let lists = |o: &TargetsOutput| {
+        o.stats
+            .memory
+            .per_viewer
+            .iter()
+            .find(|(n, _)| n == "triangle_lists")
+            .map_or(0, |(_, b)| *b)
+    };
+    assert!(lists(&micro) >= lists(&raster) + 4 * 320 * 180 * 8 / 4);
+    // Views of 7×3 and 1×1 pixels, where every triangle is small; a second frame reads
+    // the words the first one's resolve cleared.
+    for size in [(7, 3), (1, 1)] {
+        let micro = render(&scene, Settings::default(), 3, size, &[0.0, 0.1]);
+        let raster = frame_micro(&scene, false, 3, size, 0.1);
+        let (pixels, flip) = differences(&micro, &raster, size);
+        println!("Sponza at {size:?}: {pixels} pixels differ, FLIP {flip:.2e}");
+        assert!(
+            pixels <= 1,
+            "{size:?}: {pixels} pixels differ (FLIP {flip})"
+        );
+    }
+}
+
+#[test]
+fn small_scenes_leave_small_triangles_to_the_raster() {
+    // Colonnade's few hundred triangles: `micro_raster`'s resolve would cost more than
+    // its small triangles, so the raster draws them, the same with the setting on.
+    let scene = colonnade();
+    assert!((scene.mesh.indices.len() as u64 / 3) < MICRO_MIN_TRIANGLES);
+    let on = frame_micro(&scene, true, 3, (7, 3), 1.2);
+    let off = frame_micro(&scene, false, 3, (7, 3), 1.2);
+    assert_eq!(on.stats.raster_triangles, off.stats.raster_triangles);
+    assert_eq!(differences(&on, &off, (7, 3)).0, 0);
 }
 
 /// Pixels that differ, and the worst image's mean FLIP, culled against unculled.
@@ -143,6 +228,7 @@ fn frames_occluded(
 ) -> TargetsOutput {
     let settings = Settings {
         occlusion_cull: occlusion,
+        micro_raster: false,
         ..Settings::default()
     };
     let times: Vec<f32> = (0..frames).map(|f| f as f32 / 30.0).collect();

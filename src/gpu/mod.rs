@@ -21,6 +21,9 @@ pub struct GpuContext {
     /// Whether shaders may use subgroup operations (counters are then summed per
     /// subgroup instead of per workgroup, which avoids workgroup barriers).
     pub has_subgroups: bool,
+    /// Whether shaders may use 64-bit integers and atomicMax on them in storage buffers
+    /// (`micro_raster`'s depth-and-triangle words).
+    pub has_int64_atomics: bool,
     /// Nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
     /// Largest storage buffer binding, bytes.
@@ -79,6 +82,13 @@ impl GpuContext {
         if has_subgroups {
             required_features |= wgpu::Features::SUBGROUP;
         }
+        let int64_atomics =
+            wgpu::Features::SHADER_INT64 | wgpu::Features::SHADER_INT64_ATOMIC_MIN_MAX;
+        let has_int64_atomics = features.contains(int64_atomics)
+            && std::env::var_os("FOGCAST_NO_INT64_ATOMICS").is_none();
+        if has_int64_atomics {
+            required_features |= int64_atomics;
+        }
         let adapter_limits = adapter.limits();
         // Group 0 (the scene, 16 buffers) and a stage's own group (at most 6) together.
         anyhow::ensure!(
@@ -117,6 +127,7 @@ impl GpuContext {
             adapter_info: info,
             has_timestamps,
             has_subgroups,
+            has_int64_atomics,
             max_storage_binding: adapter_limits.max_storage_buffer_binding_size as u64,
             submissions: Default::default(),
         })

@@ -30,8 +30,9 @@ pub(crate) struct RasterView {
     forward: [f32; 4],
     /// Pixels (width, height).
     size: [f32; 2],
-    /// `occlusion_cull`: where the view's depth pyramid starts in its buffer
-    /// (`GBuffer::upload` places them), and padding.
+    /// Where the view's depth pyramid starts in its buffer (`occlusion_cull`), and its
+    /// pixels in the small triangles' buffer (`micro_raster`); `GBuffer::upload` places
+    /// them.
     hiz: [u32; 2],
     /// To `VIEW_STRIDE` bytes, the stride of the views in their buffer.
     _pad: [[f32; 4]; 9],
@@ -50,6 +51,11 @@ impl RasterView {
             (self.size[0] as u32).div_ceil(t),
             (self.size[1] as u32).div_ceil(t),
         )
+    }
+
+    /// The view's pixels per row and column.
+    pub(crate) fn pixels(&self) -> (u32, u32) {
+        (self.size[0] as u32, self.size[1] as u32)
     }
 
     /// Tiles of the view's depth pyramid, all levels.
@@ -293,22 +299,31 @@ impl GBuffer {
         ctx: &GpuContext,
         scene: &SceneGpu,
         views: &[RasterView],
-        (triangle_cull, occlusion_cull): (bool, bool),
+        (triangle_cull, occlusion_cull, micro_raster): (bool, bool, bool),
     ) {
         // Each view's clusters, found once: the culling's pairs and the stats read them.
         let visible: Vec<Vec<usize>> = views
             .iter()
             .map(|v| visible_clusters(scene, v).collect())
             .collect();
-        // The views' depth tiles one after another (`occlusion_cull`).
+        // The views' depth tiles one after another (`occlusion_cull`), and their pixels
+        // (`micro_raster`).
         let mut views = views.to_vec();
-        let mut tiles = 0u64;
+        let (mut tiles, mut pixels) = (0u64, 0u64);
         for v in &mut views {
-            v.hiz[0] = tiles as u32;
+            v.hiz = [tiles as u32, pixels as u32];
             tiles += v.hiz_tiles();
+            let (w, h) = v.pixels();
+            pixels += u64::from(w) * u64::from(h);
         }
         if let Some(lists) = &mut self.lists {
-            lists.upload(ctx, scene, &visible, (triangle_cull, occlusion_cull), tiles);
+            lists.upload(
+                ctx,
+                scene,
+                &visible,
+                (triangle_cull, occlusion_cull, micro_raster),
+                (tiles, pixels),
+            );
         }
         let movers = movers(scene).map_or(0, |(_, r)| u64::from(r.end - r.start) / 3);
         self.mover_triangles = movers * views.len() as u64;
@@ -360,6 +375,21 @@ impl GBuffer {
     ) {
         if let Some(lists) = self.active_lists() {
             lists.add_hiz(ctx, enc, &self.uniforms, set, ts);
+        }
+    }
+
+    /// Records `set`'s small triangles' resolve into its G-buffer (`micro_raster`, after
+    /// the set's raster).
+    pub(crate) fn add_micro_resolve(
+        &self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        scene: &SceneGpu,
+        set: &ViewerSet,
+        ts: &Timestamps,
+    ) {
+        if let Some(lists) = self.active_lists() {
+            lists.add_micro_resolve(ctx, enc, scene, &self.uniforms, set, ts);
         }
     }
 

@@ -49,7 +49,9 @@ pub use smoke_shadows::{SmokeMapKind, SmokeShadowMap, MAX_CROSSINGS as SMOKE_MAX
 pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
 pub use target::{stereo_eyes, FrameOutput, FrameTarget, TargetView, TargetsOutput};
-pub use triangle_cull::{triangle_list_bytes_per_view, OCCLUSION_MIN_TRIANGLES};
+pub use triangle_cull::{
+    triangle_list_bytes_per_view, MICRO_MIN_TRIANGLES, OCCLUSION_MIN_TRIANGLES,
+};
 pub use viewer_set::ViewerId;
 pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};
 pub use world::{Lookup, World};
@@ -322,7 +324,8 @@ impl Renderer {
         f.each_set(Stage::GBuffer, |e, s| {
             stages
                 .gbuffer
-                .add_passes(&ctx, e, &world.gpu, s, Phase::First, ts)
+                .add_passes(&ctx, e, &world.gpu, s, Phase::First, ts);
+            stages.gbuffer.add_micro_resolve(&ctx, e, &world.gpu, s, ts)
         });
         if stages.gbuffer.two_phases() {
             // `occlusion_cull`: every set's depth tiles, the test, the second phase.
@@ -443,7 +446,11 @@ impl Renderer {
             &w.ctx,
             &w.gpu,
             &rasters,
-            (w.settings.triangle_cull, w.settings.occlusion_cull),
+            (
+                w.settings.triangle_cull,
+                w.settings.occlusion_cull,
+                w.settings.micro_raster,
+            ),
         );
         w.write_views(frame, &views)
     }

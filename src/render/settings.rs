@@ -349,6 +349,24 @@ settings! {
     // Reports from before a setting existed read it as off (`serde(default)`).
     #[serde(default)]
     occlusion_cull: bool = false;
+
+    /// With `triangle_cull` (and without `occlusion_cull`), in scenes of at least
+    /// `MICRO_MIN_TRIANGLES` (65,536) static triangles, the culling pass rasterises
+    /// the triangles whose screen box holds at most 4 × 4 pixel centres itself, in
+    /// compute: it tests each centre against the triangle's edges (snapped to 1/256
+    /// pixel, top-left rule, as the raster does) and keeps the nearest triangle per
+    /// pixel with a 64-bit atomicMax of (depth, triangle); a resolve pass then writes
+    /// those pixels the raster's own triangles do not cover nearer into the G-buffer.
+    /// Off: the raster draws every kept triangle. Needs 64-bit storage atomics (else
+    /// off).
+    ///
+    /// The picture is the raster's up to pixels where two triangles' coverage rules or
+    /// depths tie differently; on lavapipe the small triangles were most of the
+    /// G-buffer's cost (docs/decisions.md, "G-buffer: small triangles rasterised in
+    /// compute").
+    // Reports from before a setting existed read it as off (`serde(default)`).
+    #[serde(default)]
+    micro_raster: bool = true;
 }
 
 // What reports from before these settings existed read as (and their defaults).

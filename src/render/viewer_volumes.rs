@@ -135,7 +135,13 @@ pub fn viewer_memory_bytes(
     } else {
         0
     };
-    buffers + count as u64 * (pixels * GBUFFER_BYTES_PER_PIXEL + smoke)
+    // `micro_raster`'s word a pixel (src/render/triangle_cull.rs).
+    let micro = if settings.triangle_cull && settings.micro_raster && !settings.occlusion_cull {
+        super::triangle_cull::MICRO_BYTES_PER_PIXEL
+    } else {
+        0
+    };
+    buffers + count as u64 * (pixels * (GBUFFER_BYTES_PER_PIXEL + micro) + smoke)
 }
 
 /// Dispatch sizes of the per-viewer stages, computed once per allocation.
@@ -208,7 +214,7 @@ impl ViewerVolumes {
                 output_pixels,
             )
             .map(|(label, bytes)| ctx.storage(label, bytes, wgpu::BufferUsages::empty()));
-        let tex = |label: &str, format: wgpu::TextureFormat| {
+        let tex = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
             ctx.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size: wgpu::Extent3d {
@@ -221,7 +227,8 @@ impl ViewerVolumes {
                 dimension: wgpu::TextureDimension::D2,
                 format,
                 usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                    | wgpu::TextureUsages::TEXTURE_BINDING,
+                    | wgpu::TextureUsages::TEXTURE_BINDING
+                    | usage,
                 view_formats: &[],
             })
         };
@@ -250,8 +257,17 @@ impl ViewerVolumes {
             tile_depth: tile_depth?,
             column_limit: column_limit?,
             output: output?,
-            gbuf: tex("gbuffer", GBUFFER_FORMAT),
-            gbuf_depth: tex("gbuffer depth", wgpu::TextureFormat::Depth32Float),
+            // Also written by `micro_raster`'s resolve (src/render/triangle_cull.rs).
+            gbuf: tex(
+                "gbuffer",
+                GBUFFER_FORMAT,
+                wgpu::TextureUsages::STORAGE_BINDING,
+            ),
+            gbuf_depth: tex(
+                "gbuffer depth",
+                wgpu::TextureFormat::Depth32Float,
+                wgpu::TextureUsages::empty(),
+            ),
             smoke: None,
         })
     }
