@@ -50,7 +50,8 @@ pub use stage::{Scope, Stage};
 pub use stats::{FrameStats, MemoryReport, RayCounts, StageTiming, ViewSize};
 pub use target::{stereo_eyes, FrameOutput, FrameTarget, TargetView, TargetsOutput};
 pub use triangle_cull::{
-    triangle_list_bytes_per_view, MICRO_MIN_TRIANGLES, OCCLUSION_MIN_TRIANGLES,
+    micro_bytes_per_pixel, triangle_list_bytes_per_view, MICRO_MIN_TRIANGLES,
+    OCCLUSION_MIN_TRIANGLES,
 };
 pub use viewer_set::ViewerId;
 pub use viewer_volumes::{largest_binding, viewer_memory_bytes, ViewerLayout, ViewerVolumes};

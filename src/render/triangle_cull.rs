@@ -53,7 +53,22 @@ pub const MICRO_MIN_TRIANGLES: u64 = 65_536;
 
 /// Bytes `micro_raster` holds per pixel of every view: the nearest small triangle's
 /// 64-bit (depth, triangle) word (shaders/micro_atomic.wgsl).
-pub(crate) const MICRO_BYTES_PER_PIXEL: u64 = 8;
+const MICRO_BYTES_PER_PIXEL: u64 = 8;
+
+/// GPU memory `micro_raster` holds per pixel of every view in a scene of
+/// `static_triangles` (0 where it does not apply).
+pub fn micro_bytes_per_pixel(settings: &super::Settings, static_triangles: u64) -> u64 {
+    let occlusion = settings.occlusion_cull && static_triangles >= OCCLUSION_MIN_TRIANGLES;
+    if settings.triangle_cull
+        && settings.micro_raster
+        && !occlusion
+        && static_triangles >= MICRO_MIN_TRIANGLES
+    {
+        MICRO_BYTES_PER_PIXEL
+    } else {
+        0
+    }
+}
 
 /// Per-view triangle culling (`triangle_cull`): the frame's (view, cluster) pairs, what
 /// the pass keeps of each, and every view's index list and indirect draw.
@@ -560,5 +575,28 @@ impl TriangleLists {
             layout: &self.layout,
             entries: &entries,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::Settings;
+
+    #[test]
+    fn small_triangles_hold_a_word_a_pixel_only_where_they_apply() {
+        let on = Settings::default();
+        assert_eq!(micro_bytes_per_pixel(&on, 262_267), 8);
+        // Small scenes, no culling, the switch off, two phases: the raster draws them.
+        assert_eq!(micro_bytes_per_pixel(&on, 336), 0);
+        let mut off = on;
+        off.triangle_cull = false;
+        assert_eq!(micro_bytes_per_pixel(&off, 262_267), 0);
+        off = on;
+        off.micro_raster = false;
+        assert_eq!(micro_bytes_per_pixel(&off, 262_267), 0);
+        off = on;
+        off.occlusion_cull = true;
+        assert_eq!(micro_bytes_per_pixel(&off, 262_267), 0);
     }
 }

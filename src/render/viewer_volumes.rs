@@ -135,13 +135,7 @@ pub fn viewer_memory_bytes(
     } else {
         0
     };
-    // `micro_raster`'s word a pixel (src/render/triangle_cull.rs).
-    let micro = if settings.triangle_cull && settings.micro_raster && !settings.occlusion_cull {
-        super::triangle_cull::MICRO_BYTES_PER_PIXEL
-    } else {
-        0
-    };
-    buffers + count as u64 * (pixels * (GBUFFER_BYTES_PER_PIXEL + micro) + smoke)
+    buffers + count as u64 * (pixels * GBUFFER_BYTES_PER_PIXEL + smoke)
 }
 
 /// Dispatch sizes of the per-viewer stages, computed once per allocation.

@@ -11,9 +11,9 @@
 
 use super::validate::{ProtocolError, SessionSpec, SpecLimits};
 use crate::protocol::ErrorCode;
-#[cfg(doc)]
-use crate::render::triangle_list_bytes_per_view;
 use crate::render::{largest_binding, viewer_memory_bytes, Settings};
+#[cfg(doc)]
+use crate::render::{micro_bytes_per_pixel, triangle_list_bytes_per_view};
 use std::collections::BTreeMap;
 
 /// The limits views are admitted against.
@@ -33,6 +33,9 @@ pub(crate) struct Budget {
     /// What the G-buffer's triangle culling holds per view at most
     /// ([`triangle_list_bytes_per_view`]; 0 with it off).
     pub(crate) triangle_lists_per_view: u64,
+    /// What the G-buffer's small triangles hold per pixel of every view
+    /// ([`micro_bytes_per_pixel`]; 0 where `micro_raster` does not apply).
+    pub(crate) micro_bytes_per_pixel: u64,
 }
 
 /// What is rendered now: views per view size.
@@ -80,6 +83,7 @@ impl Budget {
             .map(|(&(sw, sh), &n)| {
                 viewer_memory_bytes(&self.settings, n as usize, sw, sh, self.smoke_particles)
                     + n * self.triangle_lists_per_view
+                    + n * u64::from(sw) * u64::from(sh) * self.micro_bytes_per_pixel
             })
             .sum();
         if memory > self.max_view_memory_bytes {
@@ -171,6 +175,7 @@ mod tests {
             max_view_memory_bytes: u64::MAX,
             smoke_particles: 0,
             triangle_lists_per_view: 0,
+            micro_bytes_per_pixel: 0,
         };
         // The numbers: five 1920×1080 views need 158.2 MiB of froxels.
         let (label, bytes) = largest_binding(&budget.settings, 5, 1920, 1080);
@@ -209,6 +214,7 @@ mod tests {
             max_view_memory_bytes: u64::MAX,
             smoke_particles: 0,
             triangle_lists_per_view: 0,
+            micro_bytes_per_pixel: 0,
         };
         let mut used = Usage::default();
         used.add(&mono(1280, 720));
@@ -237,6 +243,7 @@ mod tests {
             max_view_memory_bytes: one * 5 / 2,
             smoke_particles: 0,
             triangle_lists_per_view: 0,
+            micro_bytes_per_pixel: 0,
         };
         let mut used = Usage::default();
         used.add(&mono(1280, 720));

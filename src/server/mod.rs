@@ -103,6 +103,10 @@ impl Server {
                 &settings,
                 scene.mesh.indices.len() as u64,
             ),
+            micro_bytes_per_pixel: crate::render::micro_bytes_per_pixel(
+                &settings,
+                scene.mesh.indices.len() as u64 / 3,
+            ),
         };
         let hub = Arc::new(Hub::new(config, scene, budget));
         let lost_hub = Arc::downgrade(&hub);
