@@ -967,16 +967,47 @@ fn media_transmittance(li: u32, p: vec3f) -> f32 {
 // is inside, and the rest of the way, that short segment, is integrated exactly.
 // The smoke's transmittance (`smoke_transmittance`) multiplies it as it does
 // `light_transmittance`.
+//
+// Where no medium's face lies within 1.75 spacings of the point (a directional light's
+// nodes are `spacing` apart on every axis, so the 8 around the point lie within √3
+// spacings of it, all on its side of every face), the volume reads right at the point,
+// as a froxel's does: the surfaces of a scene whose media reach past its floor and walls
+// need no march (docs/decisions.md, "Surfaces away from the media's faces").
 fn surface_transmittance(li: u32, p: vec3f) -> f32 {
     if frame.medium_count == 0u || (frame.flags & FLAG_MEDIA_T) == 0u || light_media[li].nodes == 0u {
         return light_transmittance(li, p);
     }
     let l = lights[li];
+    if l.kind == LIGHT_DIRECTIONAL && media_faces_beyond(p, 1.75 * light_media[li].spacing) {
+        return lookup_media_t(l, light_media[li], p) * smoke_transmittance(li, p);
+    }
     let tl = to_light(l, p);
     let back = min(3.0 * light_media[li].spacing, tl.w);
     let q = p + tl.xyz * back;
     let media = lookup_media_t(l, light_media[li], q) * exp(-media_optical_depth(p, tl.xyz, back));
     return media * smoke_transmittance(li, p);
+}
+
+// Whether every medium's density is continuous within `r` of p: no face of a medium's
+// box within `r` (inside it, the nearest face; outside, the box), and p not inside the
+// box of a sphere or volume (their surfaces are not boxes: those points keep the march).
+// A medium without extinction counts too (no need to tell it apart here).
+fn media_faces_beyond(p: vec3f, r: f32) -> bool {
+    // The fields it needs one by one (a medium is 128 bytes).
+    for (var i = 0u; i < frame.medium_count; i++) {
+        let lo = media[i].min;
+        let hi = media[i].max;
+        let kind = media[i].kind;
+        let inside = min(p - lo, hi - p);
+        let depth_in = min(min(inside.x, inside.y), inside.z);
+        if depth_in >= 0.0 && (depth_in <= r || kind == MEDIUM_SPHERE || kind == MEDIUM_VOLUME) {
+            return false;
+        }
+        if depth_in < 0.0 && length(max(max(lo - p, p - hi), vec3f(0.0))) <= r {
+            return false;
+        }
+    }
+    return true;
 }
 
 // Henyey-Greenstein; cos_theta between the light's travel direction and the scattered one.
