@@ -70,6 +70,22 @@ pub fn micro_bytes_per_pixel(settings: &super::Settings, static_triangles: u64) 
     }
 }
 
+/// Binding `binding`: `set`'s raster views in the frame's view buffer, from its first.
+fn set_views<'a>(
+    binding: u32,
+    views: &'a wgpu::Buffer,
+    set: &ViewerSet,
+) -> wgpu::BindGroupEntry<'a> {
+    wgpu::BindGroupEntry {
+        binding,
+        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: views,
+            offset: set.first_view as u64 * VIEW_STRIDE,
+            size: wgpu::BufferSize::new(set.raster_views.len() as u64 * VIEW_STRIDE),
+        }),
+    }
+}
+
 /// Per-view triangle culling (`triangle_cull`): the frame's (view, cluster) pairs, what
 /// the pass keeps of each, and every view's index list and indirect draw.
 pub(crate) struct TriangleLists {
@@ -433,14 +449,7 @@ impl TriangleLists {
             label: Some("depth tiles"),
             layout: &self.hiz_layout,
             entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                        buffer: views,
-                        offset: set.first_view as u64 * VIEW_STRIDE,
-                        size: wgpu::BufferSize::new(n * VIEW_STRIDE),
-                    }),
-                },
+                set_views(0, views, set),
                 wgpu::BindGroupEntry {
                     binding: 1,
                     resource: wgpu::BindingResource::TextureView(&gbuf),
@@ -487,14 +496,7 @@ impl TriangleLists {
             label: Some("small triangles"),
             layout: &self.micro_layout,
             entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                        buffer: views,
-                        offset: set.first_view as u64 * VIEW_STRIDE,
-                        size: wgpu::BufferSize::new(n * VIEW_STRIDE),
-                    }),
-                },
+                set_views(0, views, set),
                 wgpu::BindGroupEntry {
                     binding: 1,
                     resource: scene.vertices.as_entire_binding(),
