@@ -58,16 +58,24 @@ const MICRO_BYTES_PER_PIXEL: u64 = 8;
 /// GPU memory `micro_raster` holds per pixel of every view in a scene of
 /// `static_triangles` (0 where it does not apply).
 pub fn micro_bytes_per_pixel(settings: &super::Settings, static_triangles: u64) -> u64 {
-    let occlusion = settings.occlusion_cull && static_triangles >= OCCLUSION_MIN_TRIANGLES;
-    if settings.triangle_cull
-        && settings.micro_raster
-        && !occlusion
-        && static_triangles >= MICRO_MIN_TRIANGLES
-    {
+    let switches = (
+        settings.triangle_cull,
+        settings.occlusion_cull,
+        settings.micro_raster,
+    );
+    if micro_applies(switches, static_triangles) {
         MICRO_BYTES_PER_PIXEL
     } else {
         0
     }
+}
+
+/// Whether `micro_raster` applies given (`triangle_cull`, `occlusion_cull`,
+/// `micro_raster`): culling on, one phase (occlusion culling applies only from
+/// `OCCLUSION_MIN_TRIANGLES`), and a scene of at least `MICRO_MIN_TRIANGLES`.
+fn micro_applies((cull, occlusion, micro): (bool, bool, bool), static_triangles: u64) -> bool {
+    let two_phases = occlusion && static_triangles >= OCCLUSION_MIN_TRIANGLES;
+    cull && micro && !two_phases && static_triangles >= MICRO_MIN_TRIANGLES
 }
 
 /// Binding `binding`: `set`'s raster views in the frame's view buffer, from its first.
@@ -369,10 +377,8 @@ impl TriangleLists {
             }
             grow(&mut self.hiz, hiz_tiles * 4, hiz_tiles * 4);
         }
-        let micro = micro
-            && !occlusion
-            && ctx.has_int64_atomics
-            && static_indices / 3 >= MICRO_MIN_TRIANGLES;
+        let micro =
+            ctx.has_int64_atomics && micro_applies((on, occlusion, micro), static_indices / 3);
         if micro {
             // New buffers are zeroed, and the resolve leaves every word it reads zero.
             let bytes = pixels * MICRO_BYTES_PER_PIXEL;
@@ -484,14 +490,14 @@ impl TriangleLists {
             return;
         }
         let n = set.raster_views.len() as u64;
-        let layers = |t: &wgpu::Texture| {
-            t.create_view(&wgpu::TextureViewDescriptor {
+        let depth = set
+            .vol
+            .gbuf_depth
+            .create_view(&wgpu::TextureViewDescriptor {
                 dimension: Some(wgpu::TextureViewDimension::D2Array),
                 ..Default::default()
-            })
-        };
-        let depth = layers(&set.vol.gbuf_depth);
-        let gbuf = layers(&set.vol.gbuf);
+            });
+        let gbuf = set.vol.gbuf_array();
         let bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("small triangles"),
             layout: &self.micro_layout,
