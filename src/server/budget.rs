@@ -11,9 +11,10 @@
 
 use super::validate::{ProtocolError, SessionSpec, SpecLimits};
 use crate::protocol::ErrorCode;
-use crate::render::{largest_binding, viewer_memory_bytes, Settings};
-#[cfg(doc)]
-use crate::render::{micro_bytes_per_pixel, triangle_list_bytes_per_view};
+use crate::render::{
+    largest_binding, micro_bytes_per_pixel, triangle_list_bytes_per_view, viewer_memory_bytes,
+    Settings,
+};
 use std::collections::BTreeMap;
 
 /// The limits views are admitted against.
@@ -65,6 +66,29 @@ fn mib(bytes: u64) -> f64 {
 }
 
 impl Budget {
+    /// This budget with the G-buffer's per-view memory for a scene of `static_triangles`
+    /// (triangles, not indices: both structures are sized from the one count).
+    pub(crate) fn with_triangles(self, static_triangles: u64) -> Budget {
+        Budget {
+            triangle_lists_per_view: triangle_list_bytes_per_view(&self.settings, static_triangles),
+            micro_bytes_per_pixel: micro_bytes_per_pixel(&self.settings, static_triangles),
+            ..self
+        }
+    }
+
+    /// GPU memory the views of `views_by_size` hold: volumes, G-buffers and the
+    /// G-buffer's culling structures.
+    fn memory_of(&self, views_by_size: &BTreeMap<(u32, u32), u64>) -> u64 {
+        views_by_size
+            .iter()
+            .map(|(&(w, h), &n)| {
+                viewer_memory_bytes(&self.settings, n as usize, w, h, self.smoke_particles)
+                    + n * self.triangle_lists_per_view
+                    + n * u64::from(w) * u64::from(h) * self.micro_bytes_per_pixel
+            })
+            .sum()
+    }
+
     /// Why `spec` does not fit next to `used`, if it does not.
     fn exceeds(&self, used: &Usage, spec: &SessionSpec) -> Option<String> {
         let (w, h) = (spec.view_width, spec.view_height);
@@ -78,14 +102,7 @@ impl Budget {
         }
         let mut sizes = used.views_by_size.clone();
         *sizes.entry((w, h)).or_default() += spec.views as u64;
-        let memory: u64 = sizes
-            .iter()
-            .map(|(&(sw, sh), &n)| {
-                viewer_memory_bytes(&self.settings, n as usize, sw, sh, self.smoke_particles)
-                    + n * self.triangle_lists_per_view
-                    + n * u64::from(sw) * u64::from(sh) * self.micro_bytes_per_pixel
-            })
-            .sum();
+        let memory = self.memory_of(&sizes);
         if memory > self.max_view_memory_bytes {
             return Some(format!(
                 "with {} view(s) of {w}×{h} the views would hold {:.1} MiB of GPU memory and the server's budget is {:.1} MiB",
@@ -221,6 +238,46 @@ mod tests {
         let e = budget.admit(&used, &mono(1280, 720), &LIMITS).unwrap_err();
         assert!(e.message.contains("pixels per frame"), "{}", e.message);
         budget.admit(&used, &mono(320, 180), &LIMITS).unwrap();
+    }
+
+    #[test]
+    fn the_g_buffers_structures_are_sized_from_one_triangle_count() {
+        let base = Budget {
+            settings: Settings::default(),
+            max_binding_bytes: u64::MAX,
+            max_pixels_per_frame: u64::MAX,
+            max_view_memory_bytes: u64::MAX,
+            smoke_particles: 0,
+            triangle_lists_per_view: 0,
+            micro_bytes_per_pixel: 0,
+        };
+        // 100,000 triangles: past MICRO_MIN_TRIANGLES, but not 3 times past it (a count of
+        // indices divided by 3 twice planned no small-triangle buffer here).
+        let b = base.with_triangles(100_000);
+        assert_eq!(b.micro_bytes_per_pixel, 8);
+        // 12 B a triangle for the view's index list, and the cluster records on top.
+        assert!(
+            (1_200_000..1_300_000).contains(&b.triangle_lists_per_view),
+            "{}",
+            b.triangle_lists_per_view
+        );
+        // A small scene: lists, no small-triangle buffer; culling off: neither.
+        let small = base.with_triangles(1_000);
+        assert_eq!(small.micro_bytes_per_pixel, 0);
+        assert!(small.triangle_lists_per_view >= 12_000);
+        let mut off = base;
+        off.settings.triangle_cull = false;
+        let off = off.with_triangles(100_000);
+        assert_eq!(
+            (off.triangle_lists_per_view, off.micro_bytes_per_pixel),
+            (0, 0)
+        );
+        // The view memory a 1280×720 view is admitted against counts both.
+        let mut used = Usage::default();
+        used.add(&mono(1280, 720));
+        let with = b.memory_of(&used.views_by_size);
+        let without = base.memory_of(&used.views_by_size);
+        assert_eq!(with - without, b.triangle_lists_per_view + 1280 * 720 * 8);
     }
 
     #[test]

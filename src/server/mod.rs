@@ -99,15 +99,10 @@ impl Server {
             max_pixels_per_frame: config.max_pixels_per_frame,
             max_view_memory_bytes: config.max_view_memory_mib << 20,
             smoke_particles: crate::render::particle_capacity(&scene),
-            triangle_lists_per_view: crate::render::triangle_list_bytes_per_view(
-                &settings,
-                scene.mesh.indices.len() as u64,
-            ),
-            micro_bytes_per_pixel: crate::render::micro_bytes_per_pixel(
-                &settings,
-                scene.mesh.indices.len() as u64 / 3,
-            ),
-        };
+            triangle_lists_per_view: 0,
+            micro_bytes_per_pixel: 0,
+        }
+        .with_triangles(scene.mesh.len() as u64);
         let hub = Arc::new(Hub::new(config, scene, budget));
         let lost_hub = Arc::downgrade(&hub);
         ctx.device.set_device_lost_callback(move |reason, message| {
