@@ -1094,16 +1094,21 @@ fn ambient_irradiance(p: vec3f, n: vec3f) -> vec3f {
 // of each light by opaque geometry (0..1); the light is dimmed by the media it crossed
 // on its way to p (`light_transmittance`). Ambient light as `ambient_radiance`.
 fn in_scattering(m: MediumSample, p: vec3f, view_dir: vec3f, vis: array<f32, 8>) -> vec3f {
-    var l_in = ambient_radiance(p, view_dir, m.g);
-    for (var i = 0u; i < light_count(); i++) {
-        if vis[i] <= 0.0 {
-            continue;
-        }
-        let l = lights[i];
-        let wl = -to_light(l, p).xyz;
-        l_in += light_radiance(l, p) * hg_phase(m.g, dot(wl, -view_dir)) * (vis[i] * light_transmittance(i, p));
-    }
+    // The ambient light, then each light's (`scattered_light`; the sum is generated,
+    // src/render/mod.rs `LightSum`).
+    let l_in = scattered_lights(ambient_radiance(p, view_dir, m.g), m.g, p, view_dir, vis);
     return m.scattering * l_in + m.emission;
+}
+
+// Radiance per unit scattering coefficient that light `i` (visibility `vis[i]`) scatters
+// at `p` towards an eye looking along `view_dir`, HG `g`.
+fn scattered_light(i: u32, g: f32, p: vec3f, view_dir: vec3f, vis: array<f32, 8>) -> vec3f {
+    if vis[i] <= 0.0 {
+        return vec3f(0.0);
+    }
+    let l = lights[i];
+    let wl = -to_light(l, p).xyz;
+    return light_radiance(l, p) * hg_phase(g, dot(wl, -view_dir)) * (vis[i] * light_transmittance(i, p));
 }
 
 fn pack_rgba16(v: vec4f) -> vec2u {

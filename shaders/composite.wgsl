@@ -23,6 +23,33 @@ fn srgb(c: vec3f) -> vec3f {
     return select(1.055 * pow(c, vec3f(1.0 / 2.4)) - 0.055, c * 12.92, c <= vec3f(0.0031308));
 }
 
+// Irradiance from light `li` on the surface at `p` of normal `n` (shadow rays leave from
+// `origin`); adds the shadow ray it traced to `rays`.
+fn surface_light(li: u32, p: vec3f, n: vec3f, origin: vec3f, rays: ptr<function, u32>) -> vec3f {
+    let l = lights[li];
+    let tl = to_light(l, origin);
+    let ndl = dot(n, tl.xyz);
+    if ndl <= 0.0 {
+        return vec3f(0.0);
+    }
+    let radiance = light_radiance(l, origin);
+    if all(radiance == vec3f(0.0)) {
+        return vec3f(0.0);
+    }
+    var vis = 0.0;
+    if has_map(li) {
+        vis = map_visibility(li, l, p, n, 0.75);
+    } else {
+        *rays += 1u;
+        vis = select(0.0, 1.0, light_visible(l, origin));
+    }
+    if vis <= 0.0 {
+        return vec3f(0.0);
+    }
+    // The light crossed the media on its way to the surface.
+    return radiance * (ndl * vis * surface_transmittance(li, origin));
+}
+
 // The tone-mapped colour of pixel `xy` of view `v` (layer `layer` of the G-buffer);
 // adds the shadow rays it traced to `rays`.
 fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 {
@@ -41,32 +68,11 @@ fn shade_pixel(v: View, layer: i32, xy: vec2u, rays: ptr<function, u32>) -> u32 
             n = -n;
         }
         let albedo = surface_albedo(surface);
-        var irradiance = ambient_irradiance(p, n);
         // Offset along the normal, scaled with distance (depth precision).
         let origin = p + n * (2e-3 + depth * 2e-4);
-        for (var li = 0u; li < light_count(); li++) {
-            let l = lights[li];
-            let tl = to_light(l, origin);
-            let ndl = dot(n, tl.xyz);
-            if ndl <= 0.0 {
-                continue;
-            }
-            let radiance = light_radiance(l, origin);
-            if all(radiance == vec3f(0.0)) {
-                continue;
-            }
-            var vis = 0.0;
-            if has_map(li) {
-                vis = map_visibility(li, l, p, n, 0.75);
-            } else {
-                *rays += 1u;
-                vis = select(0.0, 1.0, light_visible(l, origin));
-            }
-            // The light crossed the media on its way to the surface.
-            if vis > 0.0 {
-                irradiance += radiance * (ndl * vis * surface_transmittance(li, origin));
-            }
-        }
+        // The ambient light, then each light's (`surface_light`; the sum is generated,
+        // src/render/mod.rs `LightSum`).
+        let irradiance = surface_lights(ambient_irradiance(p, n), p, n, origin, rays);
         color = albedo / PI * irradiance;
     }
     if (frame.flags & FLAG_MEDIA) != 0u {

@@ -43,7 +43,7 @@ impl Composite {
                 texture_entry(5),
             ],
         );
-        let module = super::stage_shader(
+        let module = super::stage_shader_with(
             ctx,
             "composite",
             concat!(
@@ -51,6 +51,13 @@ impl Composite {
                 include_str!("../../shaders/integrated_lookup.wgsl"),
                 include_str!("../../shaders/composite.wgsl")
             ),
+            constants,
+            &[super::LightSum {
+                name: "surface_lights",
+                term: "surface_light",
+                params: "p: vec3f, n: vec3f, origin: vec3f, rays: ptr<function, u32>",
+                args: "p, n, origin, rays",
+            }],
         );
         let no_smoke = ctx.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("no smoke"),

@@ -105,13 +105,15 @@ impl FroxelLighting {
             .collect();
         // `maps` mode reads the shared shadow maps (bindings 10–14).
         let layout = ShadowMaps::stage_layout(ctx, "froxel lighting", own);
-        let module = super::stage_shader(
+        let module = super::stage_shader_with(
             ctx,
             "froxel_lighting",
             concat!(
                 include_str!("../../shaders/shadow_lookup.wgsl"),
                 include_str!("../../shaders/froxel_lighting.wgsl")
             ),
+            constants,
+            &[],
         );
         Ok(FroxelLighting {
             pipeline: ctx.compute_pipeline_with(

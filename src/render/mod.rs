@@ -81,10 +81,77 @@ pub(crate) fn light_constants(scene: &Scene) -> [(&'static str, f64); 1] {
     [("LIGHTS", scene.lights.len() as f64)]
 }
 
+/// A sum over the scene's lights that the WGSL calls and Rust writes out:
+/// `fn {name}(acc: vec3f, {params}) -> vec3f` returns `acc` plus `{term}(li, {args})` for
+/// each light in order. Where the stage knows the light count (the `LIGHTS` constant,
+/// [`light_constants`]) and it is at most [`WRITTEN_OUT_LIGHTS`], each term names its
+/// light by a literal, so lavapipe reads that
+/// light's records (its `Light`, media volume, maps) as constants; a loop over
+/// `light_count()` leaves the index a variable, and the same reads cost a third of
+/// the composite and a fifth of Sponza's froxel lighting (docs/decisions.md,
+/// "Light loops written out"). Same terms in the same order either way: the same bits.
+pub(crate) struct LightSum {
+    pub name: &'static str,
+    pub term: &'static str,
+    pub params: &'static str,
+    pub args: &'static str,
+}
+
+/// The most lights a [`LightSum`] writes out: each term inlines its light's whole path
+/// (a traced shadow ray's BVH walk included), and lavapipe's compile time grows with the
+/// copies (street's six lights and chimney's seven did not compile within 10 minutes).
+const WRITTEN_OUT_LIGHTS: u32 = 2;
+
+/// In-scattered light in the fog, per light (shaders/common.wgsl `in_scattering`).
+const SCATTERED_LIGHTS: LightSum = LightSum {
+    name: "scattered_lights",
+    term: "scattered_light",
+    params: "g: f32, p: vec3f, view_dir: vec3f, vis: array<f32, 8>",
+    args: "g, p, view_dir, vis",
+};
+
+impl LightSum {
+    /// The function's WGSL for a stage with `constants` (its `LIGHTS`, if any).
+    fn wgsl(&self, constants: &[(&str, f64)]) -> String {
+        let LightSum {
+            name,
+            term,
+            params,
+            args,
+        } = self;
+        let lights = constants
+            .iter()
+            .find(|(k, _)| *k == "LIGHTS")
+            .map_or(0, |&(_, v)| v as u32);
+        let body = if lights == 0 || lights > WRITTEN_OUT_LIGHTS {
+            format!(
+                "    for (var li = 0u; li < light_count(); li++) {{\n        sum += {term}(li, {args});\n    }}\n"
+            )
+        } else {
+            (0..lights)
+                .map(|li| format!("    sum += {term}({li}u, {args});\n"))
+                .collect()
+        };
+        format!("\nfn {name}(acc: vec3f, {params}) -> vec3f {{\n    var sum = acc;\n{body}    return sum;\n}}\n")
+    }
+}
+
 /// Compiles one compute stage: the shared bindings and helpers (common.wgsl), the
 /// frame-counter helper for this adapter (per subgroup where supported), BVH traversal,
 /// then the stage itself.
 pub(crate) fn stage_shader(ctx: &GpuContext, label: &str, stage: &str) -> wgpu::ShaderModule {
+    stage_shader_with(ctx, label, stage, &[], &[])
+}
+
+/// As [`stage_shader`], for a stage created with pipeline `constants` (its `LIGHTS`
+/// writes its light sums out, [`LightSum`]), with the stage's own `sums`.
+pub(crate) fn stage_shader_with(
+    ctx: &GpuContext,
+    label: &str,
+    stage: &str,
+    constants: &[(&str, f64)],
+    sums: &[LightSum],
+) -> wgpu::ShaderModule {
     // naga (wgpu 30) takes subgroup built-ins when the device has the feature, and
     // rejects the `enable subgroups;` directive.
     let count = if ctx.has_subgroups {
@@ -92,9 +159,20 @@ pub(crate) fn stage_shader(ctx: &GpuContext, label: &str, stage: &str) -> wgpu::
     } else {
         include_str!("../../shaders/count_atomic.wgsl")
     };
+    let generated: String = std::iter::once(&SCATTERED_LIGHTS)
+        .chain(sums)
+        .map(|sum| sum.wgsl(constants))
+        .collect();
     ctx.shader(
         label,
-        &[COMMON_WGSL, GBUFFER_SURFACE_WGSL, count, BVH_WGSL, stage],
+        &[
+            COMMON_WGSL,
+            GBUFFER_SURFACE_WGSL,
+            count,
+            BVH_WGSL,
+            stage,
+            &generated,
+        ],
     )
 }
 
