@@ -85,11 +85,11 @@ pub(crate) fn light_constants(scene: &Scene) -> [(&'static str, f64); 1] {
 /// `fn {name}(acc: vec3f, {params}) -> vec3f` returns `acc` plus `{term}(li, {args})` for
 /// each light in order. Where the stage knows the light count (the `LIGHTS` constant,
 /// [`light_constants`]) and it is at most [`WRITTEN_OUT_LIGHTS`], each term names its
-/// light by a literal, so lavapipe reads that
-/// light's records (its `Light`, media volume, maps) as constants; a loop over
-/// `light_count()` leaves the index a variable, and the same reads cost a third of
-/// the composite and a fifth of Sponza's froxel lighting (docs/decisions.md,
-/// "Light loops written out"). Same terms in the same order either way: the same bits.
+/// light by a literal, so lavapipe reads that light's records (its `Light`, media
+/// volume, maps) as constants; a loop over `light_count()` leaves the index a variable,
+/// and the same reads cost a quarter of the composite and a fifth of Sponza's froxel
+/// lighting (docs/decisions.md, "Light loops written out"). Same terms in the same
+/// order either way: the same bits.
 pub(crate) struct LightSum {
     pub name: &'static str,
     pub term: &'static str,
@@ -99,7 +99,8 @@ pub(crate) struct LightSum {
 
 /// The most lights a [`LightSum`] writes out: each term inlines its light's whole path
 /// (a traced shadow ray's BVH walk included), and lavapipe's compile time grows with the
-/// copies (street's six lights and chimney's seven did not compile within 10 minutes).
+/// copies (written out for every count, `light_constant_tests` did not finish street,
+/// six lights, within 10 minutes).
 const WRITTEN_OUT_LIGHTS: u32 = 2;
 
 /// In-scattered light in the fog, per light (shaders/common.wgsl `in_scattering`).
