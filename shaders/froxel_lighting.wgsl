@@ -192,9 +192,22 @@ fn fog_map_visibility(li: u32, p: vec3f) -> f32 {
     return map_visibility(li, l, p, to_light(l, p).xyz, 1.0);
 }
 
+// The grid's media at density 1 (FLAG_GRID_MEDIA; else none), read once per column: a
+// froxel scales it by the grid's density. Read per froxel, the medium's record (128
+// bytes) cost lavapipe 12 % of the stage (docs/decisions.md, "Per-frame records read
+// once per column").
+fn grid_medium_unit() -> MediumSample {
+    if (frame.flags & FLAG_GRID_MEDIA) == 0u {
+        return MediumSample(vec3f(0.0), 0.0, vec3f(0.0), 0.0);
+    }
+    let gm = media[frame.grid_media_first];
+    return MediumSample(gm.scattering, medium_extinction(gm), gm.emission, gm.g);
+}
+
 // The radiance source and extinction of froxel (xy, slice) of view `v` at `p`, seen
-// along `dir` (the column's view ray); adds the shadow rays it traced to `rays`.
-fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<function, u32>) -> vec4f {
+// along `dir` (the column's view ray), `grid_unit` the grid's media at density 1
+// (`grid_medium_unit`); adds the shadow rays it traced to `rays`.
+fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, grid_unit: MediumSample, rays: ptr<function, u32>) -> vec4f {
     // With the media's density in the grid, a froxel inside their box that reads the
     // grid takes light bits and density from the same words (the other media, if any,
     // analytically); the rest evaluate the media.
@@ -204,9 +217,8 @@ fn light_froxel(v: View, xy: vec2u, slice: u32, p: vec3f, dir: vec3f, rays: ptr<
     var gv: GridVisibility;
     if from_grid {
         gv = dense_lookup(p, true, rays);
-        let gm = media[frame.grid_media_first];
         let d = gv.density;
-        let grid_part = MediumSample(gm.scattering * d, medium_extinction(gm) * d, gm.emission * d, gm.g);
+        let grid_part = MediumSample(grid_unit.scattering * d, grid_unit.extinction * d, grid_unit.emission * d, grid_unit.g);
         m = combine_media(grid_part, sample_media_where(p, 0u));
     } else {
         m = media_at(p);
@@ -342,11 +354,12 @@ fn main(
                 last = min(last, column_limit[column_index(v, view_index, gid.x, gid.y)]);
             }
             let dir = froxel_ray(v, gid.xy);
+            let grid_unit = grid_medium_unit();
             for (var slice = 0u; slice < v.light_slices; slice++) {
                 let p = froxel_point(v, dir, slice);
                 var out = vec4f(0.0);
                 if slice <= last {
-                    out = light_froxel(v, gid.xy, slice, p, dir, &rays);
+                    out = light_froxel(v, gid.xy, slice, p, dir, grid_unit, &rays);
                     lit += select(0u, 1u, out.w > 0.0 || any(out.rgb > vec3f(0.0)));
                 }
                 if v.history_base != NO_HISTORY {
