@@ -348,20 +348,19 @@ fn main(
         let v = volume_of(views[view_index]);
         // A coupled stereo eye lights its near field only, or nothing (v.light_slices).
         if gid.x < v.froxel_dims.x && gid.y < v.froxel_dims.y && v.light_slices > 0u {
-            // Slices behind every surface this column shows never reach the image.
+            // Slices behind every surface this column shows never reach the image: they
+            // are neither lit nor written, and the integration stops there too
+            // (FLAG_CULL, which no temporal history comes with).
             var last = v.light_slices - 1u;
             if (frame.flags & FLAG_CULL) != 0u {
                 last = min(last, column_limit[column_index(v, view_index, gid.x, gid.y)]);
             }
             let dir = froxel_ray(v, gid.xy);
             let grid_unit = grid_medium_unit();
-            for (var slice = 0u; slice < v.light_slices; slice++) {
+            for (var slice = 0u; slice <= last; slice++) {
                 let p = froxel_point(v, dir, slice);
-                var out = vec4f(0.0);
-                if slice <= last {
-                    out = light_froxel(v, gid.xy, slice, p, dir, grid_unit, &rays);
-                    lit += select(0u, 1u, out.w > 0.0 || any(out.rgb > vec3f(0.0)));
-                }
+                var out = light_froxel(v, gid.xy, slice, p, dir, grid_unit, &rays);
+                lit += select(0u, 1u, out.w > 0.0 || any(out.rgb > vec3f(0.0)));
                 if v.history_base != NO_HISTORY {
                     out = blend_history(v, p, out);
                 }

@@ -7,6 +7,9 @@
 
 @group(1) @binding(0) var<storage, read> froxels: array<vec2u>;
 @group(1) @binding(1) var<storage, read_write> integrated: array<vec2u>;
+// The last slice each column must integrate (FLAG_CULL; shaders/froxel_cull.wgsl): no
+// pixel reads past it, and the froxels past it were not lit.
+@group(1) @binding(2) var<storage, read> column_limit: array<u32>;
 
 // Pixel coordinate, along one axis of `size` pixels, of froxel column `i`'s ray
 // (`froxel_ray`: the column's centre, the last pixel's centre past the view's edge).
@@ -86,7 +89,8 @@ fn partner_froxel(o: View, pix: vec2f, s: u32) -> vec4f {
 // Every view integrates its own columns: its own froxels for the slices it lit
 // (v.light_slices: all of them but for a coupled stereo eye) and, beyond, its partner's
 // (v.volume_view) where its froxels' points project, so that both eyes' fog is
-// integrated along their own rays while the far froxels are lit once.
+// integrated along their own rays while the far froxels are lit once. With culling, a
+// column stops at its limit; the slices past it keep what an earlier frame left there.
 @compute @workgroup_size(8, 8, 1)
 fn main(
     @builtin(global_invocation_id) invocation: vec3u,
@@ -112,7 +116,14 @@ fn main(
     var scattered = vec3f(0.0);
     var transmittance = 1.0;
     var z0 = v.near;
-    for (var s = 0u; s < frame.slices; s++) {
+    var end = frame.slices;
+    if (frame.flags & FLAG_CULL) != 0u {
+        // A coupled eye without a near field has no limit of its own: its partner's
+        // covers the eye's tiles ±2 (shaders/froxel_cull.wgsl), so the eye's pixels too.
+        let limit_view = select(view_index, v.volume_view, v.light_slices == 0u);
+        end = min(end, column_limit[column_index(v, limit_view, gid.x, gid.y)] + 1u);
+    }
+    for (var s = 0u; s < end; s++) {
         let index = v.froxel_base + gid.x + v.froxel_dims.x * (gid.y + v.froxel_dims.y * s);
         let z1 = slice_depth(v, f32(s + 1u));
         let d = (z1 - z0) * inv_cos;

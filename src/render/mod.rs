@@ -306,7 +306,10 @@ impl Renderer {
     /// `[r, g, b, transmittance]` (for tests and tools: NaN or inf here is hidden by the
     /// RGBA8 clamp of the image). Viewer `i`'s froxel `(x, y, slice)` is at
     /// `i·X·Y·slices + x + X·(y + Y·slice)` for an `X × Y` froxel grid; empty before the
-    /// first frame.
+    /// first frame. With hidden froxels culled, the GPU integrates each column only up to
+    /// its limit (no pixel reads past it, and nothing was lit there); the readback
+    /// continues each column past its limit with the value at the limit, what integrating
+    /// the unlit slices gives.
     pub fn read_integrated_volume(&self) -> anyhow::Result<Vec<[f32; 4]>> {
         let Some(set) = self.sets.values().next() else {
             return Ok(Vec::new());
@@ -315,11 +318,43 @@ impl Renderer {
         let bytes = self.world.ctx.read_buffer(&v.integrated)?;
         let froxels = v.count * v.froxels_per_view() as usize;
         // `pack_rgba16` in common.wgsl: two u32 words, each the low half first.
-        Ok(bytes
+        let mut volume: Vec<[f32; 4]> = bytes
             .chunks_exact(8)
             .take(froxels)
             .map(|f| [0, 2, 4, 6].map(|k| f16_to_f32(u16::from_le_bytes([f[k], f[k + 1]]))))
-            .collect())
+            .collect();
+        if self.world.culls_hidden_froxels() {
+            let limits: Vec<u32> = self
+                .world
+                .ctx
+                .read_buffer(&v.column_limit)?
+                .chunks_exact(4)
+                .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+                .collect();
+            let columns = (v.layout.froxel_dims[0] * v.layout.froxel_dims[1]) as usize;
+            // The views' limits as the integration took them (a coupled eye without a
+            // near field: its partner's).
+            let limit_views: Vec<usize> = set
+                .gpu_views
+                .iter()
+                .enumerate()
+                .map(|(i, g)| {
+                    if g.light_slices == 0 {
+                        g.volume_view as usize
+                    } else {
+                        i
+                    }
+                })
+                .collect();
+            continue_past_limits(
+                &mut volume,
+                &limits,
+                &limit_views,
+                columns,
+                v.slices as usize,
+            );
+        }
+        Ok(volume)
     }
 
     /// Live smoke particles in the last frame (0: no smoke stage ran).
@@ -673,6 +708,30 @@ fn dispatches(
     out
 }
 
+/// Fills each column of stacked froxel volumes (`columns` columns of `slices` slices a
+/// view, slice-major) past its last integrated slice with that slice's value: view `i`'s
+/// column `c` ends at `limits[limit_views[i]·columns + c]`.
+fn continue_past_limits(
+    volume: &mut [[f32; 4]],
+    limits: &[u32],
+    limit_views: &[usize],
+    columns: usize,
+    slices: usize,
+) {
+    for (block, &limit_view) in volume.chunks_exact_mut(columns * slices).zip(limit_views) {
+        for c in 0..columns {
+            let Some(&limit) = limits.get(limit_view * columns + c) else {
+                return;
+            };
+            let last = (limit as usize).min(slices - 1);
+            let value = block[c + columns * last];
+            for s in last + 1..slices {
+                block[c + columns * s] = value;
+            }
+        }
+    }
+}
+
 /// IEEE 754 binary16 bits to f32, exactly (subnormals, inf and NaN included).
 fn f16_to_f32(h: u16) -> f32 {
     let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
@@ -689,7 +748,30 @@ fn f16_to_f32(h: u16) -> f32 {
 
 #[cfg(test)]
 mod tests {
-    use super::f16_to_f32;
+    use super::{continue_past_limits, f16_to_f32};
+
+    #[test]
+    fn columns_continue_past_their_limits() {
+        // 2 views of 2 columns × 3 slices; slice-major within a view. Limits: view 0
+        // integrated columns 0 and 1 up to slices 0 and 2, view 1 up to 1 and 0.
+        let f = |v: f32| [v, v, v, 1.0 - v / 10.0];
+        let mut volume: Vec<[f32; 4]> = (0..12).map(|i| f(i as f32)).collect();
+        continue_past_limits(&mut volume, &[0, 2, 1, 0], &[0, 1], 2, 3);
+        let firsts: Vec<f32> = volume.iter().map(|x| x[0]).collect();
+        assert_eq!(
+            firsts,
+            [0.0, 1.0, 0.0, 3.0, 0.0, 5.0, 6.0, 7.0, 8.0, 7.0, 8.0, 7.0]
+        );
+        // A view taking another's limits (a coupled eye without a near field): view 1
+        // ends where view 0's columns end.
+        let mut volume: Vec<[f32; 4]> = (0..12).map(|i| f(i as f32)).collect();
+        continue_past_limits(&mut volume, &[0, 2, 9, 9], &[0, 0], 2, 3);
+        let firsts: Vec<f32> = volume.iter().map(|x| x[0]).collect();
+        assert_eq!(
+            firsts,
+            [0.0, 1.0, 0.0, 3.0, 0.0, 5.0, 6.0, 7.0, 6.0, 9.0, 6.0, 11.0]
+        );
+    }
 
     #[test]
     fn f16_decodes_known_values() {

@@ -13,7 +13,7 @@ pub(crate) struct VolumeIntegration {
 
 impl VolumeIntegration {
     pub(crate) fn new(ctx: &GpuContext, scene_layout: &wgpu::BindGroupLayout) -> Self {
-        let layout = ctx.storage_layout("volume integration", &[Read, ReadWrite]);
+        let layout = ctx.storage_layout("volume integration", &[Read, ReadWrite, Read]);
         let module = super::stage_shader(
             ctx,
             "volume_integration",
@@ -36,7 +36,7 @@ impl VolumeIntegration {
         let bg = ctx.bind_buffers(
             "volume integration",
             &self.layout,
-            &[&v.froxels, &v.integrated],
+            &[&v.froxels, &v.integrated, &v.column_limit],
         );
         dispatch(
             enc,

@@ -242,6 +242,12 @@ impl World {
             && self.shadow_maps.maps_every_light()
     }
 
+    /// Whether the frames cull hidden froxels (`FLAG_CULL`): only where the culling passes
+    /// run, so where a grid exists or the maps light every froxel (media and lights).
+    pub(crate) fn culls_hidden_froxels(&self) -> bool {
+        self.settings.culls_hidden_froxels() && (self.grid.is_some() || self.froxels_from_maps())
+    }
+
     /// The shared grid, when froxels read it this frame (media and lights in `shared`).
     pub(crate) fn grid(&self) -> Option<&SharedShadowGrid> {
         self.grid.as_ref().filter(|_| self.has_media())
@@ -357,9 +363,7 @@ impl World {
         if s.edges_from_maps() {
             flags |= FLAG_MAP_EDGES;
         }
-        // Only where the culling passes run: a grid exists, or the maps light every
-        // froxel (media and lights).
-        if s.culls_hidden_froxels() && (self.grid.is_some() || self.froxels_from_maps()) {
+        if self.culls_hidden_froxels() {
             flags |= FLAG_CULL;
         }
         let (lo, hi) = scene.bounds;
