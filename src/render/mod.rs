@@ -752,25 +752,32 @@ mod tests {
 
     #[test]
     fn columns_continue_past_their_limits() {
-        // 2 views of 2 columns × 3 slices; slice-major within a view. Limits: view 0
-        // integrated columns 0 and 1 up to slices 0 and 2, view 1 up to 1 and 0.
-        let f = |v: f32| [v, v, v, 1.0 - v / 10.0];
-        let mut volume: Vec<[f32; 4]> = (0..12).map(|i| f(i as f32)).collect();
-        continue_past_limits(&mut volume, &[0, 2, 1, 0], &[0, 1], 2, 3);
-        let firsts: Vec<f32> = volume.iter().map(|x| x[0]).collect();
-        assert_eq!(
-            firsts,
-            [0.0, 1.0, 0.0, 3.0, 0.0, 5.0, 6.0, 7.0, 8.0, 7.0, 8.0, 7.0]
-        );
-        // A view taking another's limits (a coupled eye without a near field): view 1
-        // ends where view 0's columns end.
-        let mut volume: Vec<[f32; 4]> = (0..12).map(|i| f(i as f32)).collect();
-        continue_past_limits(&mut volume, &[0, 2, 9, 9], &[0, 0], 2, 3);
-        let firsts: Vec<f32> = volume.iter().map(|x| x[0]).collect();
-        assert_eq!(
-            firsts,
-            [0.0, 1.0, 0.0, 3.0, 0.0, 5.0, 6.0, 7.0, 6.0, 9.0, 6.0, 11.0]
-        );
+        // 2 views of 2 columns × 3 slices, slice-major within a view: (limits, the view
+        // whose limits each view takes, the volume's red channel after).
+        let cases: [([u32; 4], [usize; 2], [f32; 12]); 2] = [
+            // View 0 integrated columns 0 and 1 up to slices 0 and 2, view 1 up to 1
+            // and 0.
+            (
+                [0, 2, 1, 0],
+                [0, 1],
+                [0.0, 1.0, 0.0, 3.0, 0.0, 5.0, 6.0, 7.0, 8.0, 7.0, 8.0, 7.0],
+            ),
+            // View 1 takes view 0's limits (a coupled eye without a near field).
+            (
+                [0, 2, 9, 9],
+                [0, 0],
+                [0.0, 1.0, 0.0, 3.0, 0.0, 5.0, 6.0, 7.0, 6.0, 9.0, 6.0, 11.0],
+            ),
+        ];
+        for (limits, limit_views, want) in cases {
+            let mut volume: Vec<[f32; 4]> = (0..12).map(|i| [i as f32, 0.0, 0.0, 1.0]).collect();
+            continue_past_limits(&mut volume, &limits, &limit_views, 2, 3);
+            let red: Vec<f32> = volume.iter().map(|x| x[0]).collect();
+            assert_eq!(
+                red, want,
+                "limits {limits:?}, taken from views {limit_views:?}"
+            );
+        }
     }
 
     #[test]
