@@ -14,7 +14,10 @@
 //! DT the heads move along the path, the n-th pair of frames at scene time n·DT seconds
 //! (default 0: every frame at t = 0); the fog stages' rays, the froxels with media and
 //! the frames whose froxels requested the grid's voxels (`froxel_requests`) are
-//! reported too.
+//! reported too. With `FOGCAST_AB_BLOCK=n` in the environment each renderer draws n
+//! frames in a row and only the last is measured, so that every measured frame follows
+//! its own renderer's frame (as in `fogcast bench`; docs/decisions.md, "Each measured
+//! frame follows its own renderer's").
 //! Example: `cargo run --example ab_settings -- colonnade - stereo_head=on 20 2`.
 
 use anyhow::Context as _;
@@ -69,7 +72,14 @@ fn main() -> anyhow::Result<()> {
     };
     // Per renderer: stage → GPU ms of each measured frame (and rays, as "rays: …").
     let mut ms: [BTreeMap<String, Vec<f64>>; 2] = Default::default();
-    for f in 0..2 * (WARMUP + frames) {
+    // FOGCAST_AB_BLOCK=n: each renderer renders n frames in a row, the last measured.
+    let block: usize = std::env::var("FOGCAST_AB_BLOCK")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1)
+        .max(1);
+    for g in 0..2 * (WARMUP + frames) * block {
+        let f = g / block;
         let (k, t) = (f % 2, (f / 2) as f32 * dt);
         let heads = scene.camera.viewers(heads, t);
         let which: Vec<FrameTarget> = heads
@@ -84,7 +94,7 @@ fn main() -> anyhow::Result<()> {
             })
             .collect();
         let out = renderers[k].render_targets(&which, t)?;
-        if f < 2 * WARMUP {
+        if f < 2 * WARMUP || g % block != block - 1 {
             continue;
         }
         let stages = &out.stats.stage_gpu_ms;

@@ -4,7 +4,10 @@
 //! For every viewer count, every configuration (`reference`, `shared`, `maps`, variants)
 //! renders the same cameras at the same scene times; the configurations take turns frame
 //! by frame (the order reversed every other frame) so that noise from other processes
-//! falls on all of them alike. Two camera scenarios:
+//! falls on all of them alike. Each measured frame comes right after an unmeasured
+//! lead-in frame of the same renderer one time step earlier, so that it follows its own
+//! renderer's frame as in a server, not another configuration's (after a `reference`
+//! frame, lavapipe ran the next frame's G-buffer 1.3× slower). Camera scenarios:
 //!
 //! - **path**: viewers spread evenly along the scene's camera loop, all walking it, as
 //!   players spread over a level would be ([`crate::scene::CameraPath::viewers`]);
@@ -702,7 +705,8 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         .map(|(s, n)| {
             // Coupled, each eye alone, and the first eye alone once more.
             let viewer_renders = if *s == stereo { 2 * n + 1 } else { *n };
-            viewer_renders * frames_per_point * cfg.configs.len()
+            // Every measured frame follows a lead-in frame of its own renderer.
+            viewer_renders * (frames_per_point + cfg.frames as usize) * cfg.configs.len()
         })
         .sum();
     let aspect = cfg.width as f32 / cfg.height as f32;
@@ -715,6 +719,20 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         for k in 0..frames_per_point {
             let t = cfg.time_s + k as f32 * FRAME_DT_S;
             let cams = scenario.cameras(&scene, n, t, aspect);
+            // A measured frame follows a frame of its own renderer one step earlier,
+            // as in a server, where one renderer draws frame after frame: the frame
+            // before it, not the other configuration's, is what it inherits
+            // (docs/decisions.md, "Each measured frame follows its own renderer's").
+            let measured = k >= cfg.warmup as usize;
+            let t_before = t - FRAME_DT_S;
+            let cams_before = scenario.cameras(&scene, n, t_before, aspect);
+            let size = (cfg.width, cfg.height);
+            let lead_in = |r: &mut Renderer, scenario: Scenario, cams: &[Camera]| {
+                if measured {
+                    render_point(r, scenario, cams, size, t_before)?;
+                }
+                anyhow::Ok(())
+            };
             let mut order: Vec<usize> = (0..cfg.configs.len()).collect();
             if k % 2 == 1 {
                 order.reverse();
@@ -733,30 +751,26 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
                         k + 1
                     ),
                 });
-                let out = render_point(
-                    &mut renderers[i],
-                    scenario,
-                    &cams,
-                    (cfg.width, cfg.height),
-                    t,
-                )
-                .map_err(|e| {
-                    e.context(format!(
-                        "{} with {n} viewer(s), configuration '{}'",
-                        scenario.label(),
-                        cfg.configs[i].name
-                    ))
-                })?;
+                let out = lead_in(&mut renderers[i], scenario, &cams_before)
+                    .and_then(|()| render_point(&mut renderers[i], scenario, &cams, size, t))
+                    .map_err(|e| {
+                        e.context(format!(
+                            "{} with {n} viewer(s), configuration '{}'",
+                            scenario.label(),
+                            cfg.configs[i].name
+                        ))
+                    })?;
                 outputs[i] = Some(out);
-                done += n;
+                done += if measured { 2 * n } else { n };
                 if scenario == stereo {
-                    let size = (cfg.width, cfg.height);
-                    let out = render_point(&mut alone_renderers[i], eyes_alone, &cams, size, t)?;
-                    alone[i] = Some(out);
-                    let one =
-                        render_point(&mut one_eye_renderers[i], eyes_alone, &cams[..1], size, t)?;
+                    let alone_r = &mut alone_renderers[i];
+                    lead_in(alone_r, eyes_alone, &cams_before)?;
+                    alone[i] = Some(render_point(alone_r, eyes_alone, &cams, size, t)?);
+                    let one_r = &mut one_eye_renderers[i];
+                    lead_in(one_r, eyes_alone, &cams_before[..1])?;
+                    let one = render_point(one_r, eyes_alone, &cams[..1], size, t)?;
                     one_eye[i] = frame_gpu_ms(&one);
-                    done += n + 1;
+                    done += if measured { 2 * (n + 1) } else { n + 1 };
                 }
             }
             if k < cfg.warmup as usize {
