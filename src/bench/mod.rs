@@ -464,6 +464,16 @@ impl FlipSummary {
 
 /// One frame of `cams` under `scenario`: stereo pairs as one frame of two eyes each
 /// (split back into one image per eye), every other camera as a mono view.
+/// The time step (in frames of [`FRAME_DT_S`]) of a point's `k`-th frame: warm-up frames
+/// take one step each, every measured frame two, its lead-in frame the first of them.
+fn frame_step(k: usize, warmup: usize) -> usize {
+    if k < warmup {
+        k
+    } else {
+        warmup + 2 * (k - warmup) + 1
+    }
+}
+
 fn render_point(
     r: &mut Renderer,
     scenario: Scenario,
@@ -717,13 +727,15 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         let mut alone_samples: Vec<Samples> =
             cfg.configs.iter().map(|_| Samples::default()).collect();
         for k in 0..frames_per_point {
-            let t = cfg.time_s + k as f32 * FRAME_DT_S;
-            let cams = scenario.cameras(&scene, n, t, aspect);
             // A measured frame follows a frame of its own renderer one step earlier,
             // as in a server, where one renderer draws frame after frame: the frame
             // before it, not the other configuration's, is what it inherits
             // (docs/decisions.md, "Each measured frame follows its own renderer's").
+            // Each renderer sees one unbroken 30 fps walk: the warm-up frames, then
+            // lead-in and measured frames in turn.
             let measured = k >= cfg.warmup as usize;
+            let t = cfg.time_s + frame_step(k, cfg.warmup as usize) as f32 * FRAME_DT_S;
+            let cams = scenario.cameras(&scene, n, t, aspect);
             let t_before = t - FRAME_DT_S;
             let cams_before = scenario.cameras(&scene, n, t_before, aspect);
             let size = (cfg.width, cfg.height);
@@ -851,6 +863,24 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn each_renderer_walks_unbroken_steps_through_lead_ins() {
+        for warmup in [0, 1, 2] {
+            // What one renderer draws, in order: each warm-up frame, then each measured
+            // frame's lead-in (one step before it) and the measured frame.
+            let mut steps = Vec::new();
+            for k in 0..warmup + 4 {
+                let step = frame_step(k, warmup);
+                if k >= warmup {
+                    steps.push(step - 1);
+                }
+                steps.push(step);
+            }
+            let unbroken: Vec<usize> = (0..warmup + 8).collect();
+            assert_eq!(steps, unbroken, "warm-up {warmup}");
+        }
+    }
 
     #[test]
     fn fixed_overlap_spaces_cameras_by_the_unshared_angle() {

@@ -646,9 +646,10 @@ fn markdown(r: &BenchReport) -> String {
     let path = Scenario::Path;
     let mut md = format!(
         "# bench: {scene}\n\n`{cmd}`\n\n{w}×{h} per viewer; at each point {warm} warm-up and \
-         {frames} measured frame(s), scene time from {t0} s in steps of {dt:.4} s; the \
-         configurations take turns frame by frame on the same cameras, each measured frame \
-         right after a lead-in frame of its own renderer one step earlier. Times are GPU \
+         {frames} measured frame(s), scene time from {t0} s in steps of {dt:.4} s, each \
+         measured frame right after an unmeasured lead-in frame of its own renderer one \
+         step earlier (so each renderer walks unbroken steps); the configurations take \
+         turns frame by frame on the same cameras. Times are GPU \
          timestamp queries on `{adapter}` with {threads} CPU thread(s): the median over the \
          measured frames, the range in brackets; a frame's time is the sum of its stages. \
          Rays and voxels are means per frame. Ratios of times to `reference` are medians of \
