@@ -36,7 +36,7 @@ render: deps-runtime build
 # per viewer; colonnade also with 0.5 m and 0.125 m grids, the world media layer
 # (`layer`) and the fixed-overlap scenario (paper Figure 12); smokehall for the smoke
 # (issue 15: the shared smoke shadow maps once, the smoke per viewer). Reports and
-# plots go to out/bench/<scene>/. About 20–30 minutes on 2 cores with lavapipe. The dev
+# plots go to out/bench/<scene>/. About 45 minutes on 2 cores with lavapipe. The dev
 # profile (opt-level 2, the one `make test` builds) is enough: the GPU work runs in Mesa.
 # Flags for every run, e.g. BENCH_ARGS="--frames 3 --width 640 --height 360".
 BENCH_ARGS ?=
@@ -59,7 +59,7 @@ bench: deps-runtime
 # scene's whole bench run CHECK_RUNS times: out/checks/<scene>/checks.md lists every
 # check's value per run and how many runs pass its bound. A time ratio moves by 10-15 %
 # between runs on lavapipe, so one run cannot tell a bound missed by a few percent from
-# noise. About 8 minutes in all on 2 cores (a colonnade run ~30 s, a Sponza run ~60 s).
+# noise. About 12 minutes in all on 2 cores (a colonnade run ~1 min, a Sponza run ~1.5 min).
 CHECK_RUNS ?= 5
 checks: deps-runtime
 	$(CARGO) build
