@@ -17,7 +17,8 @@
 //! reported too. With `FOGCAST_AB_BLOCK=n` in the environment each renderer draws n
 //! frames in a row and only the last is measured, so that every measured frame follows
 //! its own renderer's frame (as in `fogcast bench`; docs/decisions.md, "Each measured
-//! frame follows its own renderer's").
+//! frame follows its own renderer's"). `FOGCAST_AB_SLEEP_MS=ms` pauses that long before
+//! every frame.
 //! Example: `cargo run --example ab_settings -- colonnade - stereo_head=on 20 2`.
 
 use anyhow::Context as _;
@@ -93,6 +94,12 @@ fn main() -> anyhow::Result<()> {
                 }
             })
             .collect();
+        if let Some(ms) = std::env::var("FOGCAST_AB_SLEEP_MS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+        {
+            std::thread::sleep(std::time::Duration::from_millis(ms));
+        }
         let out = renderers[k].render_targets(&which, t)?;
         if f < 2 * WARMUP || g % block != block - 1 {
             continue;
