@@ -7,7 +7,7 @@
 //! falls on all of them alike. Each measured frame comes right after an unmeasured
 //! lead-in frame of the same renderer one time step earlier, so that it follows its own
 //! renderer's frame as in a server, not another configuration's (after a `reference`
-//! frame, lavapipe ran the next frame's G-buffer 1.3× slower). Camera scenarios:
+//! frame, lavapipe ran the next frame's G-buffer up to 1.3× slower). Camera scenarios:
 //!
 //! - **path**: viewers spread evenly along the scene's camera loop, all walking it, as
 //!   players spread over a level would be ([`crate::scene::CameraPath::viewers`]);
@@ -462,8 +462,6 @@ impl FlipSummary {
     }
 }
 
-/// One frame of `cams` under `scenario`: stereo pairs as one frame of two eyes each
-/// (split back into one image per eye), every other camera as a mono view.
 /// The time step (in frames of [`FRAME_DT_S`]) of a point's `k`-th frame: warm-up frames
 /// take one step each, every measured frame two, its lead-in frame the first of them.
 fn frame_step(k: usize, warmup: usize) -> usize {
@@ -474,6 +472,8 @@ fn frame_step(k: usize, warmup: usize) -> usize {
     }
 }
 
+/// One frame of `cams` under `scenario`: stereo pairs as one frame of two eyes each
+/// (split back into one image per eye), every other camera as a mono view.
 fn render_point(
     r: &mut Renderer,
     scenario: Scenario,
