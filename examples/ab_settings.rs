@@ -73,12 +73,10 @@ fn main() -> anyhow::Result<()> {
     };
     // Per renderer: stage → GPU ms of each measured frame (and rays, as "rays: …").
     let mut ms: [BTreeMap<String, Vec<f64>>; 2] = Default::default();
+    let env = |name: &str| std::env::var(name).ok().and_then(|s| s.parse::<u64>().ok());
     // FOGCAST_AB_BLOCK=n: each renderer renders n frames in a row, the last measured.
-    let block: usize = std::env::var("FOGCAST_AB_BLOCK")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1)
-        .max(1);
+    let block = env("FOGCAST_AB_BLOCK").unwrap_or(1).max(1) as usize;
+    let pause = env("FOGCAST_AB_SLEEP_MS").map(std::time::Duration::from_millis);
     for g in 0..2 * (WARMUP + frames) * block {
         let f = g / block;
         let (k, t) = (f % 2, (f / 2) as f32 * dt);
@@ -94,11 +92,8 @@ fn main() -> anyhow::Result<()> {
                 }
             })
             .collect();
-        if let Some(ms) = std::env::var("FOGCAST_AB_SLEEP_MS")
-            .ok()
-            .and_then(|s| s.parse().ok())
-        {
-            std::thread::sleep(std::time::Duration::from_millis(ms));
+        if let Some(pause) = pause {
+            std::thread::sleep(pause);
         }
         let out = renderers[k].render_targets(&which, t)?;
         if f < 2 * WARMUP || g % block != block - 1 {
