@@ -78,8 +78,10 @@ fn bench_json_has_every_field_and_rays_scale_as_the_paper_says() {
     assert_eq!(
         progressed.into_inner(),
         // 4 configurations × (1 warm-up frame + 2 measured frames, each after a
-        // lead-in frame of its own renderer) × the viewers of every point.
-        4 * (1 + 2 * 2) * (1 + 4 + 2 + (2 * 2 + 1)),
+        // lead-in frame of its own renderer) × the viewers of every point, after
+        // every renderer (4 configurations × the path, the eyes alone and one eye)
+        // primed its world with 1 warm-up frame of the widest point's 4 viewers.
+        4 * (1 + 2 * 2) * (1 + 4 + 2 + (2 * 2 + 1)) + 4 * 3 * 4,
         "progress reaches every viewer-frame, lead-in frames included"
     );
     for file in [

@@ -710,6 +710,15 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
         plan.push((stereo, 2 * sessions));
     }
     let frames_per_point = (cfg.warmup + cfg.frames) as usize;
+    // Every renderer first walks the widest point's path cameras through the warm-up
+    // steps, unmeasured, so that every point finds its world as a server that has been
+    // streaming finds it: its caches holding what viewers along the path saw. Without
+    // it the first point (one viewer, or the stereo scenario's baselines) measured a
+    // world still filling its cache while later points measured a full one, which made
+    // the marginal viewer and the stereo ratio look cheaper than they are
+    // (docs/decisions.md, "Every renderer starts from a primed world").
+    let prime_viewers = plan.iter().map(|&(_, n)| n).max().unwrap_or(0);
+    let prime_renderers = renderers.len() + alone_renderers.len() + one_eye_renderers.len();
     let total: usize = plan
         .iter()
         .map(|(s, n)| {
@@ -718,9 +727,32 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             // Every measured frame follows a lead-in frame of its own renderer.
             viewer_renders * (frames_per_point + cfg.frames as usize) * cfg.configs.len()
         })
-        .sum();
+        .sum::<usize>()
+        + prime_renderers * prime_viewers * cfg.warmup as usize;
     let aspect = cfg.width as f32 / cfg.height as f32;
     let mut done = 0;
+    let size = (cfg.width, cfg.height);
+    for r in renderers
+        .iter_mut()
+        .chain(&mut alone_renderers)
+        .chain(&mut one_eye_renderers)
+    {
+        for k in 0..cfg.warmup as usize {
+            progress(&Progress {
+                done,
+                total,
+                label: format!(
+                    "priming the world: {prime_viewers} viewer(s), frame {}",
+                    k + 1
+                ),
+            });
+            let t = cfg.time_s + k as f32 * FRAME_DT_S;
+            let cams = Scenario::Path.cameras(&scene, prime_viewers, t, aspect);
+            render_point(r, Scenario::Path, &cams, size, t)
+                .map_err(|e| e.context("priming the world"))?;
+            done += prime_viewers;
+        }
+    }
     let mut points = Vec::new();
     for &(scenario, n) in &plan {
         let mut samples: Vec<Samples> = cfg.configs.iter().map(|_| Samples::default()).collect();
@@ -738,7 +770,6 @@ pub fn run(cfg: &BenchConfig, progress: &dyn Fn(&Progress)) -> anyhow::Result<Be
             let cams = scenario.cameras(&scene, n, t, aspect);
             let t_before = t - FRAME_DT_S;
             let cams_before = scenario.cameras(&scene, n, t_before, aspect);
-            let size = (cfg.width, cfg.height);
             let lead_in = |r: &mut Renderer, scenario: Scenario, cams: &[Camera]| {
                 if measured {
                     render_point(r, scenario, cams, size, t_before)?;
