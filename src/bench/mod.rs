@@ -7,7 +7,10 @@
 //! falls on all of them alike. Each measured frame comes right after an unmeasured
 //! lead-in frame of the same renderer one time step earlier, so that it follows its own
 //! renderer's frame as in a server, not another configuration's (after a `reference`
-//! frame, lavapipe ran the next frame's G-buffer up to 1.3× slower). Camera scenarios:
+//! frame, lavapipe ran the next frame's G-buffer up to 1.3× slower). Before the first
+//! point every renderer draws the widest point's cameras for the warm-up steps,
+//! unmeasured, so that every point finds its world's caches as a running server would,
+//! not still filling them. Camera scenarios:
 //!
 //! - **path**: viewers spread evenly along the scene's camera loop, all walking it, as
 //!   players spread over a level would be ([`crate::scene::CameraPath::viewers`]);
