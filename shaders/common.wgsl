@@ -84,6 +84,7 @@ const FLAG_MAP_EDGES: u32 = 32768u; // shared: where the grid's voxels disagree,
 const FLAG_GRID_MEDIA: u32 = 65536u; // shared: the grid carries the costly media's density (grid_density)
 const FLAG_GRID_MEDIA_MOVES: u32 = 131072u; // grid_media: the media move (refill every needed voxel each frame)
 const FLAG_FROXEL_REQUESTS: u32 = 262144u; // no request pass: froxels request the voxels they find unfilled
+const FLAG_GRID_MEDIA_FINE: u32 = 524288u; // grid_media: the density on cells of half a voxel (fine_row)
 
 struct View {
     view_proj: mat4x4f,
@@ -389,6 +390,11 @@ fn trace_voxel(q: vec3u, which: u32, rays: ptr<function, u32>) -> u32 {
 // holds the density at the face, so a trilinear read just inside runs up to the face
 // undimmed instead of mixing in empty voxels the froxels outside never read.
 fn density_code(p: vec3f) -> u32 {
+    return code_of_density(grid_media_density(p));
+}
+
+// The density of the media the grid carries at `p` clamped into their box (density_code).
+fn grid_media_density(p: vec3f) -> f32 {
     let q = clamp(p, frame.grid_media_min, frame.grid_media_max);
     var d = 0.0;
     for (var i = 0u; i < frame.medium_count; i++) {
@@ -396,7 +402,30 @@ fn density_code(p: vec3f) -> u32 {
             d += medium_density(media[i], q);
         }
     }
+    return d;
+}
+
+fn code_of_density(d: f32) -> u32 {
     return 1u + u32(clamp(round(d / frame.grid_media_unit), 0.0, 254.0));
+}
+
+// With FLAG_GRID_MEDIA_FINE the grid's media density lattice is twice as fine as its
+// light bits: each voxel holds 2 × 2 × 2 cells of half its edge, cell (x, y, z) centred
+// at grid_min + (x + 0.5, y + 0.5, z + 0.5) · voxel_size / 2. Their codes follow the
+// coarse words in `grid_density`, laid out like the coarse words at twice the
+// resolution (4 cells a word along x, 2 · grid_words_x words a row), so a trilinear
+// read pairs x-neighbours in one word as the coarse one does, and the coarse word
+// (x, y, z) owns fine words 2x and 2x + 1 of rows 2y, 2y + 1 in slices 2z, 2z + 1.
+// A voxel's cells are filled together with its coarse code, which then holds their
+// mean and marks the voxel filled (docs/decisions.md, "Density in the shared grid").
+fn fine_cell_centre(c: vec3u) -> vec3f {
+    return frame.grid_min + (vec3f(c) + 0.5) * (0.5 * frame.voxel_size);
+}
+
+// The first word of the fine cells' row (y, z) in `grid_density`.
+fn fine_row(y: u32, z: u32) -> u32 {
+    let dims = frame.grid_dims;
+    return frame.grid_words_x * dims.y * dims.z + 2u * frame.grid_words_x * (y + 2u * dims.y * z);
 }
 
 const PI: f32 = 3.14159265358979;

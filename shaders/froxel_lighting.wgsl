@@ -14,6 +14,9 @@
 // FLAG_GRID_MEDIA: the grid's media density, 8 bits per voxel in the grid's layout
 // (shaders/shared_grid.wgsl fills it).
 @group(1) @binding(6) var<storage, read> grid_density: array<u32>;
+// FLAG_GRID_MEDIA_FINE as a pipeline constant (`grid_media_fine`): off, the fine cells'
+// code is compiled out (it cost lavapipe 4 % of this stage where no froxel ran it).
+override GRID_MEDIA_FINE: bool = false;
 // FLAG_FROXEL_REQUESTS: the grid's requests (grid_requests.wgsl's dense layout), made
 // here for the next frame's grid pass instead of by a request pass before it.
 @group(1) @binding(7) var<storage, read_write> requests: array<atomic<u32>>;
@@ -38,10 +41,11 @@ fn grid_mask(c: vec3i) -> u32 {
 // grid_visibility's trilinear read of the dense grid: four voxels share a word along x,
 // so the two x-neighbours of each (y, z) corner pair come from one word three times in
 // four (5 reads instead of 8 on average). Same sums, in the same order, as the
-// voxel-by-voxel read. With `media`, the grid's media density too, from the same words
-// of `grid_density`, and whether one of the 8 voxels is not filled yet (code 0: never
-// requested; only without a request pass, FLAG_FROXEL_REQUESTS).
-fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
+// voxel-by-voxel read. With `codes`, the voxels' codes from the same words of
+// `grid_density`: the density at their centres (without FLAG_GRID_MEDIA_FINE), and
+// whether one of the 8 voxels is not filled yet (`missing`; code 0: never requested;
+// only without a request pass, FLAG_FROXEL_REQUESTS).
+fn dense_trilinear(base: vec3i, f: vec3f, codes: bool) -> GridVisibility {
     var vis: array<f32, 8>;
     var density = 0.0;
     var unfilled = false;
@@ -69,7 +73,7 @@ fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
             vis[li] += a * f32((m0 >> li) & 1u);
             vis[li] += b * f32((m1 >> li) & 1u);
         }
-        if media {
+        if codes {
             let d0 = grid_density[x0 / 4u + row];
             var d1 = d0;
             if x1 / 4u != x0 / 4u {
@@ -83,6 +87,57 @@ fn dense_trilinear(base: vec3i, f: vec3f, media: bool) -> GridVisibility {
         }
     }
     return GridVisibility(vis, unfilled, density * frame.grid_media_unit);
+}
+
+// The grid's media density at the point whose coarse trilinear lookup is (base, f),
+// from the fine cells (fine_row in common.wgsl), trilinearly: the cells' coordinates
+// are g = 2 (coarse coordinate) + 0.5. Those cells lie in the lookup's 8 voxels.
+fn fine_density(base: vec3i, f: vec3f) -> f32 {
+    let g = 2.0 * (vec3f(base) + f) + 0.5;
+    let b = vec3i(floor(g));
+    let w = g - floor(g);
+    let top = 2 * vec3i(frame.grid_dims) - 1;
+    let x0 = u32(clamp(b.x, 0, top.x));
+    let x1 = u32(clamp(b.x + 1, 0, top.x));
+    var density = 0.0;
+    for (var yz = 0u; yz < 4u; yz++) {
+        let oy = yz & 1u;
+        let oz = yz >> 1u;
+        let row = fine_row(u32(clamp(b.y + i32(oy), 0, top.y)), u32(clamp(b.z + i32(oz), 0, top.z)));
+        let w0 = grid_density[row + x0 / 4u];
+        var w1 = w0;
+        if x1 / 4u != x0 / 4u {
+            w1 = grid_density[row + x1 / 4u];
+        }
+        let k0 = (w0 >> (8u * (x0 % 4u))) & 0xffu;
+        let k1 = (w1 >> (8u * (x1 % 4u))) & 0xffu;
+        let wy = select(1.0 - w.y, w.y, oy == 1u);
+        let wz = select(1.0 - w.z, w.z, oz == 1u);
+        density += (1.0 - w.x) * wy * wz * (max(f32(k0), 1.0) - 1.0) + w.x * wy * wz * (max(f32(k1), 1.0) - 1.0);
+    }
+    return density * frame.grid_media_unit;
+}
+
+// fine_density where some of the lookup's voxels are not filled yet (made_trilinear):
+// a cell not filled (code 0) is evaluated here as the grid pass fills it. One loop
+// over the cells, so that the media's code is compiled once.
+fn made_fine_density(base: vec3i, f: vec3f) -> f32 {
+    let g = 2.0 * (vec3f(base) + f) + 0.5;
+    let b = vec3i(floor(g));
+    let w = g - floor(g);
+    let top = 2 * vec3i(frame.grid_dims) - 1;
+    var density = 0.0;
+    for (var k = 0u; k < 8u; k++) {
+        let o = vec3u(k & 1u, (k >> 1u) & 1u, k >> 2u);
+        let c = vec3u(clamp(b + vec3i(o), vec3i(0), top));
+        var code = (grid_density[fine_row(c.y, c.z) + c.x / 4u] >> (8u * (c.x % 4u))) & 0xffu;
+        if code == 0u {
+            code = density_code(fine_cell_centre(c));
+        }
+        let wk = select(1.0 - w, w, o == vec3u(1u));
+        density += wk.x * wk.y * wk.z * (max(f32(code), 1.0) - 1.0);
+    }
+    return density * frame.grid_media_unit;
 }
 
 // dense_trilinear where some of the 8 voxels are not filled yet: those are made here as
@@ -101,7 +156,9 @@ fn made_trilinear(base: vec3i, f: vec3f, rays: ptr<function, u32>) -> GridVisibi
         var c = (grid_density[word] >> (8u * (q.x % 4u))) & 0xffu;
         if c == 0u {
             m = trace_voxel(q, 0xffu, rays);
-            c = density_code(voxel_centre(q));
+            if !GRID_MEDIA_FINE {
+                c = density_code(voxel_centre(q));
+            }
         }
         masks[k] = m;
         codes[k] = c;
@@ -135,15 +192,24 @@ fn dense_lookup(p: vec3f, media: bool, rays: ptr<function, u32>) -> GridVisibili
     let base = vec3i(floor(g));
     let f = g - floor(g);
     let requests_here = (frame.flags & FLAG_FROXEL_REQUESTS) != 0u;
-    let gv = dense_trilinear(base, f, media || requests_here);
-    if !gv.missing {
-        return gv;
+    let fine = GRID_MEDIA_FINE;
+    var gv = dense_trilinear(base, f, requests_here || (media && !fine));
+    let made = gv.missing;
+    if made {
+        if requests_here {
+            let bit = lookup_request_bit(base, true);
+            atomicOr(&requests[bit.x], bit.y);
+        }
+        gv = made_trilinear(base, f, rays);
     }
-    if requests_here {
-        let bit = lookup_request_bit(base, true);
-        atomicOr(&requests[bit.x], bit.y);
+    if media && fine {
+        if made {
+            gv.density = made_fine_density(base, f);
+        } else {
+            gv.density = fine_density(base, f);
+        }
     }
-    return made_trilinear(base, f, rays);
+    return gv;
 }
 
 struct GridVisibility {

@@ -126,6 +126,11 @@ fn plan_word(gid: vec3u, fill_codes: bool) -> WordPlan {
     }
     let media = (frame.flags & FLAG_GRID_MEDIA) != 0u;
     let refill = (frame.flags & FLAG_GRID_MEDIA_MOVES) != 0u;
+    let fine = (frame.flags & FLAG_GRID_MEDIA_FINE) != 0u;
+    // FLAG_GRID_MEDIA_FINE: the codes of the 8 fine words this word owns (fine_row in
+    // common.wgsl), 2 per row of cells, and which of their bytes were filled.
+    var fine_codes: array<u32, 8>;
+    var fine_coded: array<u32, 8>;
     if media {
         plan.old_codes = grid_density[word_index];
     }
@@ -162,7 +167,24 @@ fn plan_word(gid: vec3u, fill_codes: bool) -> WordPlan {
         let shift = 8u * i;
         if media && (refill || ((plan.old_codes >> shift) & 0xffu) == 0u) {
             if fill_codes {
-                plan.codes |= density_code(voxel_centre(vec3u(x, gid.y, gid.z))) << shift;
+                let q = vec3u(x, gid.y, gid.z);
+                if fine {
+                    // Its 8 cells: row r = y + 2z of the owned rows, word i / 2, byte
+                    // 2 (i % 2) + x; the coarse code is their mean's.
+                    var sum = 0.0;
+                    for (var k = 0u; k < 8u; k++) {
+                        let c = vec3u(k & 1u, (k >> 1u) & 1u, k >> 2u);
+                        let d = grid_media_density(fine_cell_centre(2u * q + c));
+                        sum += d;
+                        let slot = 2u * (k >> 1u) + i / 2u;
+                        let byte = 8u * (2u * (i % 2u) + c.x);
+                        fine_codes[slot] |= code_of_density(d) << byte;
+                        fine_coded[slot] |= 0xffu << byte;
+                    }
+                    plan.codes |= code_of_density(sum / 8.0) << shift;
+                } else {
+                    plan.codes |= density_code(voxel_centre(q)) << shift;
+                }
             }
             plan.coded |= 0xffu << shift;
         }
@@ -180,6 +202,15 @@ fn plan_word(gid: vec3u, fill_codes: bool) -> WordPlan {
         plan.valid_bits |= stale << shift;
         plan.traced |= 1u << i;
         plan.stale |= stale << shift;
+    }
+    if fine && fill_codes && plan.coded != 0u {
+        for (var slot = 0u; slot < 8u; slot++) {
+            if fine_coded[slot] != 0u {
+                let r = slot / 2u;
+                let at = fine_row(2u * gid.y + (r & 1u), 2u * gid.z + (r >> 1u)) + 2u * gid.x + slot % 2u;
+                grid_density[at] = fine_codes[slot] | (grid_density[at] & ~fine_coded[slot]);
+            }
+        }
     }
     return plan;
 }

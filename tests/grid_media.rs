@@ -90,6 +90,51 @@ fn grid_density_gives_the_evaluated_image_and_fills_once_for_every_viewer() {
     assert_eq!(a.stats.grid_media_voxels, b.stats.grid_media_voxels);
 }
 
+/// The density on cells of half a voxel (`grid_media_fine`, the default) against one
+/// sample per voxel centre: both against froxels evaluating the media, on the same
+/// cameras and frames. The finer lattice must come closer on every viewer.
+#[test]
+fn fine_cells_bring_the_grid_density_closer_to_the_evaluated_media() {
+    let scene = colonnade();
+    let cams = scene.camera.viewers(2, 0.0);
+    let (w, h) = SIZE;
+    let with = |fine: bool| {
+        let settings = Settings {
+            grid_media_fine: fine,
+            ..Settings::for_scene(&scene)
+        };
+        Renderer::new(gpu(), scene.clone(), settings).unwrap()
+    };
+    let mut fine = with(true);
+    let mut coarse = with(false);
+    let mut evaluated = renderer(&scene, false, 0.25);
+    let (mut sum_fine, mut sum_coarse) = (0.0, 0.0);
+    for t in [0.0, 1.0 / 30.0] {
+        let a = fine.render(&cams, w, h, t).unwrap();
+        let b = coarse.render(&cams, w, h, t).unwrap();
+        let e = evaluated.render(&cams, w, h, t).unwrap();
+        assert_eq!(
+            a.stats.grid_media_voxels, b.stats.grid_media_voxels,
+            "the same voxels are filled"
+        );
+        for (i, ((ra, rb), re)) in a.images.iter().zip(&b.images).zip(&e.images).enumerate() {
+            let f = compare(ra, re, w, h).unwrap().flip_mean;
+            let c = compare(rb, re, w, h).unwrap().flip_mean;
+            println!(
+                "t {t:.3} viewer {i}: FLIP vs evaluated, fine cells {f:.5}, voxel centres {c:.5}"
+            );
+            assert!(f < c, "viewer {i}: fine {f} is not closer than {c}");
+            sum_fine += f;
+            sum_coarse += c;
+        }
+    }
+    println!(
+        "mean over 4 images: fine cells {:.5}, voxel centres {:.5}",
+        sum_fine / 4.0,
+        sum_coarse / 4.0
+    );
+}
+
 #[test]
 fn media_finer_than_two_voxels_stay_evaluated() {
     // Colonnade's noise: 0.35 cycles/m, 3 octaves, a finest lattice of 0.71 m: 0.25 m
@@ -178,10 +223,20 @@ fn a_fog_box_inside_the_grid_keeps_its_density_up_to_its_faces() {
 
 /// `froxel_requests` on or off over colonnade's defaults (`grid_media` on).
 fn requesting(scene: &Arc<Scene>, froxel_requests: bool, demand_cache: bool) -> Renderer {
+    requesting_fine(scene, froxel_requests, demand_cache, false)
+}
+
+fn requesting_fine(
+    scene: &Arc<Scene>,
+    froxel_requests: bool,
+    demand_cache: bool,
+    grid_media_fine: bool,
+) -> Renderer {
     let settings = Settings {
         froxel_requests,
         demand: true,
         cache: demand_cache,
+        grid_media_fine,
         ..Settings::for_scene(scene)
     };
     Renderer::new(gpu(), scene.clone(), settings).unwrap()
@@ -189,6 +244,17 @@ fn requesting(scene: &Arc<Scene>, froxel_requests: bool, demand_cache: bool) -> 
 
 #[test]
 fn froxels_request_what_the_grid_lacks_and_give_the_request_pass_image() {
+    froxel_requests_give_the_request_pass_image(false);
+}
+
+/// The same with the density on fine cells (`grid_media_fine`): a froxel makes the
+/// cells it lacks as the grid pass fills them.
+#[test]
+fn froxels_request_what_the_fine_grid_lacks_and_give_the_request_pass_image() {
+    froxel_requests_give_the_request_pass_image(true);
+}
+
+fn froxel_requests_give_the_request_pass_image(fine: bool) {
     // Two viewers walking the colonnade's path at 30 fps (its louvre turning): from the
     // second frame the froxels request the voxels they find unfilled, instead of a
     // request pass over every froxel, and make those voxels themselves meanwhile, as
@@ -197,8 +263,8 @@ fn froxels_request_what_the_grid_lacks_and_give_the_request_pass_image() {
     // next frame has the request pass again.
     let scene = colonnade();
     let (w, h) = SIZE;
-    let mut froxels = requesting(&scene, true, true);
-    let mut pass = requesting(&scene, false, true);
+    let mut froxels = requesting_fine(&scene, true, true, fine);
+    let mut pass = requesting_fine(&scene, false, true, fine);
     let mut made = 0;
     let mut over_budget = None;
     for f in 0..5 {

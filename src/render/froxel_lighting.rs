@@ -92,7 +92,8 @@ pub(crate) struct FroxelLighting {
 }
 
 impl FroxelLighting {
-    /// `constants`: the scene's light count (`super::light_constants`).
+    /// `constants`: the scene's light count (`super::light_constants`) and
+    /// `GRID_MEDIA_FINE` (whether the grid's density is on fine cells; default false).
     pub(crate) fn new(
         ctx: &GpuContext,
         scene_layout: &wgpu::BindGroupLayout,

@@ -29,6 +29,8 @@ pub(crate) const FLAG_GRID_MEDIA_MOVES: u32 = 131072;
 /// `froxel_requests` this frame: no request pass; froxels request the voxels they find
 /// unfilled for the next frame's grid pass, and trace their own rays meanwhile.
 pub(crate) const FLAG_FROXEL_REQUESTS: u32 = 262144;
+/// With `FLAG_GRID_MEDIA` and `grid_media_fine`: the density on cells of half a voxel.
+pub(crate) const FLAG_GRID_MEDIA_FINE: u32 = 524288;
 
 /// Indices into the counters buffer (`C_*` in common.wgsl).
 pub(crate) const COUNTERS: usize = 13;

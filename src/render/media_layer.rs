@@ -197,11 +197,14 @@ pub(crate) struct GridMedia {
     /// Whether one of them moves: then every needed voxel is refilled every frame;
     /// static media fill each voxel once, the first frame it is needed.
     pub animated: bool,
+    /// The density on cells of half a voxel (`grid_media_fine`): 8 per voxel.
+    pub fine: bool,
 }
 
 /// [`GridMedia`] for `scene` on a grid of `voxel_m` voxels, or `None` when no medium
-/// qualifies or the qualifying ones differ in their coefficients.
-pub(crate) fn grid_media(scene: &Scene, voxel_m: f32) -> Option<GridMedia> {
+/// qualifies or the qualifying ones differ in their coefficients; `fine`: the density on
+/// cells of half a voxel.
+pub(crate) fn grid_media(scene: &Scene, voxel_m: f32, fine: bool) -> Option<GridMedia> {
     let in_grid: Vec<bool> = scene
         .media
         .iter()
@@ -233,6 +236,7 @@ pub(crate) fn grid_media(scene: &Scene, voxel_m: f32) -> Option<GridMedia> {
         max,
         unit: largest / 254.0,
         animated: moves(scene, &ids),
+        fine,
         in_grid,
     })
 }

@@ -228,12 +228,20 @@ impl Renderer {
         let world = World::new(ctx.clone(), scene, bvh, settings)?;
         let layout = &world.gpu.layout;
         let lights = light_constants(&world.scene);
+        // Froxel lighting also knows whether the grid's density is on fine cells
+        // (`grid_media_fine`): off, its code for them is compiled out.
+        let fine = world
+            .grid
+            .as_ref()
+            .and_then(|g| g.media.as_ref())
+            .is_some_and(|m| m.fine);
+        let lighting_constants = [lights[0], ("GRID_MEDIA_FINE", f64::from(u8::from(fine)))];
         Ok(Renderer {
             stages: ViewerStages {
                 gbuffer: gbuffer::GBuffer::new(&ctx),
                 cull: froxel_cull::FroxelCull::new(&ctx, layout),
                 frustum: shadow_frustum::ShadowFrustum::new(&ctx, layout, &lights),
-                lighting: froxel_lighting::FroxelLighting::new(&ctx, layout, &lights)?,
+                lighting: froxel_lighting::FroxelLighting::new(&ctx, layout, &lighting_constants)?,
                 integration: volume_integration::VolumeIntegration::new(&ctx, layout),
                 smoke: smoke_view::SmokeView::new(&ctx, &world.gpu),
                 composite: composite::Composite::new(&ctx, layout, &lights),

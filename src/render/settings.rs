@@ -212,6 +212,17 @@ settings! {
     #[serde(default)]
     grid_media: bool = true;
 
+    /// With the density in the grid (`grid_media`): the density on cells of half a
+    /// voxel, 8 per voxel (8 bytes a voxel more), read trilinearly, the voxel's code
+    /// their mean; off: one sample at each voxel's centre.
+    ///
+    /// Beyond the paper: a voxel's centre sample blurs the media's finest noise octave,
+    /// which froxels near the eye, narrower than a voxel, resolve. Closer to the
+    /// evaluated media and to `truth`, but on lavapipe froxel lighting costs 1.3–1.5×
+    /// (docs/decisions.md, "Density in the shared grid"), so off by default.
+    #[serde(default)]
+    grid_media_fine: bool = false;
+
     /// With the density in the grid (`grid_media`) and a dense, cached, demand-driven
     /// grid: a froxel that reads a voxel the grid has not filled makes it itself as the
     /// grid pass would (the same picture) and requests it for the next frame's grid

@@ -40,9 +40,12 @@ pub struct SharedShadowGrid {
     pub(crate) brick_table: wgpu::Buffer,
     /// Sparse: the brick of each pool slot.
     slot_brick: wgpu::Buffer,
-    /// `grid_media`: the costly media's density at each needed voxel's centre, 8 bits in
-    /// units of `GridMedia::unit`, in the grid's layout (4 voxels per word); a 16-byte
-    /// stand-in without.
+    /// `grid_media`: the costly media's density on a lattice twice as fine as the
+    /// voxels, 8 bits in units of `GridMedia::unit`: first a code per voxel in the
+    /// grid's layout (4 voxels per word; nonzero once the voxel's cells are filled),
+    /// then the cells in that layout at twice the resolution (`fine_row` in
+    /// common.wgsl); a
+    /// 16-byte stand-in without.
     pub(crate) density: wgpu::Buffer,
     /// The media the grid carries the density of (`grid_media`, dense grids).
     pub(crate) media: Option<GridMedia>,
@@ -225,7 +228,17 @@ impl SharedShadowGrid {
             (words * 4, 16, 16)
         };
         let valid_bytes = if policy.cached() { words * 4 } else { 16 };
-        let largest = grid_bytes.max(request_bytes).max(table_bytes);
+        // Coarse codes (4 voxels a word), then the fine cells' codes in the same layout
+        // at twice the resolution (8 words for each coarse word).
+        let density_bytes = match &media {
+            Some(m) if m.fine => words * 4 * 9,
+            Some(_) => words * 4,
+            None => 16,
+        };
+        let largest = grid_bytes
+            .max(request_bytes)
+            .max(table_bytes)
+            .max(density_bytes);
         anyhow::ensure!(
             largest <= ctx.max_storage_binding,
             "a {voxel_size_m} m shadow grid over {extent:?} m is {}×{}×{} = {voxels} voxels; its largest buffer is {:.0} MiB, more than the adapter can bind ({:.0} MiB): use a larger --voxel-size-m{}",
@@ -316,10 +329,7 @@ impl SharedShadowGrid {
             valid: storage("grid valid bits", valid_bytes)?,
             brick_table: storage("grid brick table", table_bytes)?,
             slot_brick: storage("grid brick slots", (pool * 4).max(16))?,
-            density: storage(
-                "shared grid media density",
-                if media.is_some() { words * 4 } else { 16 },
-            )?,
+            density: storage("shared grid media density", density_bytes)?,
             media,
             policy,
             listed_groups: storage(

@@ -140,7 +140,9 @@ impl World {
         let grid_bounds = scene.media_bounds().filter(|_| grid_needed);
         let grid_media = grid_bounds
             .filter(|_| settings.density_in_grid())
-            .and_then(|_| media_layer::grid_media(&scene, settings.voxel_size_m));
+            .and_then(|_| {
+                media_layer::grid_media(&scene, settings.voxel_size_m, settings.grid_media_fine)
+            });
         let gpu = SceneGpu::new(
             &ctx,
             &scene,
@@ -314,6 +316,9 @@ impl World {
                 flags |= FLAG_GRID_MEDIA;
                 if m.animated {
                     flags |= FLAG_GRID_MEDIA_MOVES;
+                }
+                if m.fine {
+                    flags |= FLAG_GRID_MEDIA_FINE;
                 }
             }
         }
