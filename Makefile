@@ -50,7 +50,7 @@ PAPER := --variant 'paper:demand=off,cache=off,shadow_map_px=0' --variant 'gated
 bench: deps-runtime
 	$(CARGO) build
 	$(FOGCAST_DEV) bench --scene colonnade $(PAPER) --variant 'coarse:voxel_size_m=0.5' --variant 'fine:voxel_size_m=0.125' --variant 'layer:media_voxel_m=0.25' --overlap 10,25,50,75,100 --stereo 1,2,4,8 --truth 1 $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) --stereo 1,2,4,8 $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene scenes/sponza.toml $(PAPER) --stereo 1,2,4,8 --truth 1 $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene street --variant 'paper:demand=off,cache=off,shadow_map_px=0' $(BENCH_ARGS)
 	$(FOGCAST_DEV) bench --scene smokehall --modes shared --time 14 $(BENCH_ARGS)
 
@@ -59,12 +59,13 @@ bench: deps-runtime
 # scene's whole bench run CHECK_RUNS times: out/checks/<scene>/checks.md lists every
 # check's value per run and how many runs pass its bound. A time ratio moves by 10-15 %
 # between runs on lavapipe, so one run cannot tell a bound missed by a few percent from
-# noise. About 12 minutes in all on 2 cores (a colonnade run ~1 min, a Sponza run ~1.5 min).
+# noise. About 20 minutes in all on 2 cores (a colonnade run ~1 min, a Sponza run ~3 min,
+# most of it `truth` at 320×180, the bench's size, recomputed every run).
 CHECK_RUNS ?= 5
 checks: deps-runtime
 	$(CARGO) build
 	$(FOGCAST_DEV) bench --scene colonnade --viewers 1,16 --stereo 1 --truth 1 --repeat $(CHECK_RUNS) --out out/checks/colonnade $(BENCH_ARGS)
-	$(FOGCAST_DEV) bench --scene scenes/sponza.toml --viewers 1,16 --stereo 1 --repeat $(CHECK_RUNS) --out out/checks/sponza $(BENCH_ARGS)
+	$(FOGCAST_DEV) bench --scene scenes/sponza.toml --viewers 1,16 --stereo 1 --truth 1 --repeat $(CHECK_RUNS) --out out/checks/sponza $(BENCH_ARGS)
 
 test: deps
 	$(CARGO) test -- --test-threads=1
