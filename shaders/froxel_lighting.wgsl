@@ -92,11 +92,23 @@ fn dense_trilinear(base: vec3i, f: vec3f, codes: bool) -> GridVisibility {
 // The grid's media density at the point whose coarse trilinear lookup is (base, f),
 // from the fine cells (fine_row in common.wgsl), trilinearly: the cells' coordinates
 // are g = 2 (coarse coordinate) + 0.5. Those cells lie in the lookup's 8 voxels.
-fn fine_density(base: vec3i, f: vec3f) -> f32 {
+struct FineLookup {
+    // The lowest of the 8 cells, the weights towards the others, the last cell a side.
+    base: vec3i,
+    w: vec3f,
+    top: vec3i,
+}
+
+fn fine_lookup(base: vec3i, f: vec3f) -> FineLookup {
     let g = 2.0 * (vec3f(base) + f) + 0.5;
-    let b = vec3i(floor(g));
-    let w = g - floor(g);
-    let top = 2 * vec3i(frame.grid_dims) - 1;
+    return FineLookup(vec3i(floor(g)), g - floor(g), 2 * vec3i(frame.grid_dims) - 1);
+}
+
+fn fine_density(base: vec3i, f: vec3f) -> f32 {
+    let l = fine_lookup(base, f);
+    let b = l.base;
+    let w = l.w;
+    let top = l.top;
     let x0 = u32(clamp(b.x, 0, top.x));
     let x1 = u32(clamp(b.x + 1, 0, top.x));
     var density = 0.0;
@@ -122,10 +134,10 @@ fn fine_density(base: vec3i, f: vec3f) -> f32 {
 // a cell not filled (code 0) is evaluated here as the grid pass fills it. One loop
 // over the cells, so that the media's code is compiled once.
 fn made_fine_density(base: vec3i, f: vec3f) -> f32 {
-    let g = 2.0 * (vec3f(base) + f) + 0.5;
-    let b = vec3i(floor(g));
-    let w = g - floor(g);
-    let top = 2 * vec3i(frame.grid_dims) - 1;
+    let l = fine_lookup(base, f);
+    let b = l.base;
+    let w = l.w;
+    let top = l.top;
     var density = 0.0;
     for (var k = 0u; k < 8u; k++) {
         let o = vec3u(k & 1u, (k >> 1u) & 1u, k >> 2u);

@@ -231,8 +231,7 @@ impl Renderer {
         // Froxel lighting also knows whether the grid's density is on fine cells
         // (`grid_media_fine`): off, its code for them is compiled out.
         let fine = world
-            .grid
-            .as_ref()
+            .grid()
             .and_then(|g| g.media.as_ref())
             .is_some_and(|m| m.fine);
         let lighting_constants = [lights[0], ("GRID_MEDIA_FINE", f64::from(u8::from(fine)))];
